@@ -1,0 +1,22 @@
+# Resolves CRPGS_WITH_CUDA (AUTO/ON/OFF) into CRPGS_CUDA_ENABLED.
+# AUTO: on only when nvcc is found AND libtorch was built with CUDA.
+set(CRPGS_CUDA_ENABLED OFF)
+set(_crpgs_torch_cuda OFF)
+if(TARGET torch_cuda OR CUDA_FOUND OR TORCH_CUDA_LIBRARIES)
+  set(_crpgs_torch_cuda ON)
+endif()
+if(NOT CRPGS_WITH_CUDA STREQUAL "OFF")
+  include(CheckLanguage)
+  check_language(CUDA)
+  if(CRPGS_WITH_CUDA STREQUAL "ON" AND NOT CMAKE_CUDA_COMPILER)
+    message(FATAL_ERROR "CRPGS_WITH_CUDA=ON but no CUDA compiler (nvcc) was found")
+  endif()
+  if(CMAKE_CUDA_COMPILER AND (_crpgs_torch_cuda OR CRPGS_WITH_CUDA STREQUAL "ON"))
+    set(CRPGS_CUDA_ENABLED ON)
+  endif()
+endif()
+message(STATUS "crpgs: CRPGS_WITH_CUDA=${CRPGS_WITH_CUDA}; nvcc: ${CMAKE_CUDA_COMPILER}; "
+               "CUDA libtorch: ${_crpgs_torch_cuda}; CUDA rasterizer: ${CRPGS_CUDA_ENABLED}")
+if(NOT CRPGS_CUDA_ENABLED)
+  message(STATUS "crpgs: building without the CUDA rasterizer (available: cpu)")
+endif()

@@ -1,0 +1,65 @@
+/// @file config.h
+/// @brief A YAML run configuration: loading with source positions, `--set` overrides, and
+/// resolution of every section against its schema (core sections and component blocks).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <yaml-cpp/yaml.h>
+
+#include "crpgs/plugin_abi.h"
+#include "crpgs/schema.h"
+#include "crpgs/status.h"
+
+namespace crpgs {
+
+class ComponentRegistry;
+
+/// A top-level section that holds a component: its YAML key, the kind it must be, and the
+/// type used when the section is absent.
+struct ComponentSection {
+  const char* key;
+  crpgs_kind kind;
+  const char* default_type;
+};
+/// entropy, context, links, features, rasterizer.
+const std::vector<ComponentSection>& component_sections();
+
+/// A top-level section with a fixed schema owned by the core (dataset, scene, model, train, ...).
+struct CoreSection {
+  std::string key;
+  Schema schema;
+};
+/// Registered by the SDK modules that own them (see core_sections.cpp).
+const std::vector<CoreSection>& core_sections();
+
+class Config {
+ public:
+  static StatusOr<Config> load_file(const std::string& path);
+  static StatusOr<Config> from_string(const std::string& yaml_text, const std::string& name);
+
+  /// Applies "a.b.c=value" (value parsed as YAML). Creates missing maps.
+  Status apply_override(const std::string& assignment);
+
+  /// Validates every section (unknown top-level keys are errors) and fills in defaults. Component
+  /// types are looked up in `registry`; an unknown type lists the available types and where
+  /// plugins were searched.
+  StatusOr<Config> resolve(const ComponentRegistry& registry) const;
+
+  const YAML::Node& root() const { return root_; }
+  YAML::Node section(const std::string& key) const { return root_[key]; }
+  const std::string& file() const { return src_.file; }
+  const SourceRef& source() const { return src_; }
+  std::string dump() const;
+  /// Writes dump() atomically to `path`.
+  Status save(const std::string& path) const;
+  /// FNV-1a 64 of dump(): identifies a resolved config in bitstreams.
+  uint64_t hash() const;
+
+ private:
+  YAML::Node root_;
+  SourceRef src_;
+};
+
+}  // namespace crpgs

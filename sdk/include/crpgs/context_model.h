@@ -1,0 +1,37 @@
+/// @file context_model.h
+/// @brief The context family. Grid contexts (`hash_grid`) turn anchor positions into context
+/// features for the entropy parameters; link strategies (`link_cohs`, `link_random`,
+/// `link_distance`, `link_none`) choose, per anchor, an already-decoded root to condition on.
+/// Both return the same forms whichever made them, so the pipeline cannot tell them apart.
+#pragma once
+
+#include <torch/types.h>
+
+#include "crpgs/component.h"
+
+namespace crpgs {
+
+/// What a link strategy sees when (re)building links.
+struct LinkInputs {
+  torch::Tensor features;   ///< [N, D] current raw coded features
+  torch::Tensor positions;  ///< [N, 3]
+  torch::Tensor active;     ///< [N] bool: anchors that will be coded
+  uint64_t seed = 0;        ///< for random strategies; stored with the links
+};
+
+class ContextModel : public Component {
+ public:
+  /// Width of the per-anchor context feature; 0 for a pure link strategy.
+  virtual int64_t output_dim() const { return 0; }
+  /// positions01: [N, 3] in [0,1]. Returns [N, output_dim()].
+  virtual torch::Tensor forward(const torch::Tensor& positions01) {
+    return torch::zeros({positions01.size(0), 0}, positions01.options());
+  }
+  /// Link strategies: int64 [N], entry i = index of the root anchor i is conditioned on, or -1.
+  /// One hop only: a root is never itself a leaf. Grid contexts return all -1.
+  virtual torch::Tensor build_links(const LinkInputs& in) {
+    return torch::full({in.features.size(0)}, -1, torch::kLong);
+  }
+};
+
+}  // namespace crpgs

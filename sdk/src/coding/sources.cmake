@@ -1,0 +1,1 @@
+# Sources of sdk/src/coding (paths relative to sdk/).

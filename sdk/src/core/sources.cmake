@@ -1,0 +1,1 @@
+# Sources of sdk/src/core (paths relative to sdk/).

@@ -1,0 +1,1 @@
+# Sources of sdk/src/io (paths relative to sdk/).

@@ -1,0 +1,1 @@
+# Sources of sdk/src/model (paths relative to sdk/).

@@ -1,0 +1,1 @@
+# Sources of sdk/src/raster (paths relative to sdk/).

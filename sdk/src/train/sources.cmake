@@ -1,0 +1,1 @@
+# Sources of sdk/src/train (paths relative to sdk/).

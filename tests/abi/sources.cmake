@@ -1,0 +1,1 @@
+# Test sources of tests/abi (paths relative to tests/).

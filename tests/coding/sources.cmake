@@ -1,0 +1,1 @@
+# Test sources of tests/coding (paths relative to tests/).

@@ -1,0 +1,1 @@
+# Test sources of tests/io (paths relative to tests/).

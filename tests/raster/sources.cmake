@@ -1,0 +1,1 @@
+# Test sources of tests/raster (paths relative to tests/).

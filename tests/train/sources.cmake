@@ -1,0 +1,1 @@
+# Test sources of tests/train (paths relative to tests/).
