@@ -45,6 +45,7 @@ class Schema {
 };
 
 /// Where a YAML node came from, for messages: "configs/hac.yaml:14:9".
+/// Nodes without a position (set by `--set`) are described as coming from the command line.
 struct SourceRef {
   std::string file;
   std::string describe(const YAML::Node& node) const;

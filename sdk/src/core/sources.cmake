@@ -1,1 +1,9 @@
 # Sources of sdk/src/core (paths relative to sdk/).
+list(APPEND CRPGS_BASE_SOURCES
+  src/core/status.cpp
+  src/core/schema.cpp
+  src/core/config.cpp
+  src/core/registry.cpp
+  src/core/atomic_file.cpp)
+list(APPEND CRPGS_TORCH_SOURCES
+  src/core/components.cpp)

@@ -1,1 +1,2 @@
 # Sources of sdk/src/train (paths relative to sdk/).
+list(APPEND CRPGS_BASE_SOURCES src/train/sections.cpp)

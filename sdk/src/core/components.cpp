@@ -1,0 +1,62 @@
+/// @file components.cpp
+/// @brief Built-in components (rasterizers, identity feature model) and typed creation helpers.
+#include "crpgs/components.h"
+
+#include "crpgs/plugin.h"
+#if __has_include("raster/cpu_rasterizer.h")  // TODO(lead): drop once the rasterizer has landed
+#include "raster/cpu_rasterizer.h"
+#define CRPGS_HAVE_CPU_RASTER 1
+#endif
+
+namespace crpgs {
+namespace {
+
+/// The default feature model: the MLPs see the coded feature itself (plain HAC).
+class IdentityFeatures final : public FeatureModel {
+ public:
+  IdentityFeatures(const YAML::Node&, const crpgs_create_args& args) : dim_(args.feature_dim) {
+    if (dim_ <= 0) throw std::invalid_argument("identity: feature_dim must be positive");
+  }
+  std::string type_name() const override { return "identity"; }
+  YAML::Node hyperparams() const override {
+    YAML::Node n;
+    n["type"] = type_name();
+    return n;
+  }
+  int64_t coded_dim() const override { return dim_; }
+  int64_t feature_dim() const override { return dim_; }
+  torch::Tensor forward(const torch::Tensor& coded, const torch::Tensor&) override { return coded; }
+
+ private:
+  int64_t dim_;
+};
+
+CRPGS_DESCRIPTOR_FUNCTION(identity_features_descriptor, CRPGS_KIND_FEATURES, FeatureModel,
+                          IdentityFeatures, "org.crpgs.features.identity", "identity", 1, 0, "[]")
+
+}  // namespace
+
+ComponentRegistry builtin_registry() {
+  ComponentRegistry r;
+  std::vector<const crpgs_plugin_descriptor*> builtins = {identity_features_descriptor()};
+#ifdef CRPGS_HAVE_CPU_RASTER
+  builtins.push_back(cpu_rasterizer_descriptor());
+#endif
+  for (auto* d : builtins) {
+    Status st = r.add_builtin(d);
+    if (!st.ok()) throw StatusError(st);  // a broken built-in is a programming error
+  }
+  return r;
+}
+
+crpgs_create_args create_args_for(const Config& resolved) {
+  crpgs_create_args a{};
+  const YAML::Node model = resolved.section("model");
+  a.feature_dim = model && model["feature_dim"] ? model["feature_dim"].as<int>() : 50;
+  a.n_offsets = model && model["n_offsets"] ? model["n_offsets"].as<int>() : 10;
+  const YAML::Node r = resolved.section("rasterizer");
+  a.device_cuda = r && r["type"] && r["type"].as<std::string>() == "cuda" ? 1 : 0;
+  return a;
+}
+
+}  // namespace crpgs

@@ -1,0 +1,188 @@
+/// @file config.cpp
+#include "crpgs/config.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "crpgs/atomic_file.h"
+#include "crpgs/registry.h"
+
+namespace crpgs {
+namespace {
+
+std::string join(const std::vector<std::string>& items) {
+  std::string out;
+  for (size_t i = 0; i < items.size(); ++i) out += (i ? ", " : "") + items[i];
+  return out;
+}
+
+StatusOr<YAML::Node> parse_yaml(const std::string& text, const std::string& name) {
+  try {
+    YAML::Node root = YAML::Load(text);
+    if (root.IsNull()) return YAML::Node(YAML::NodeType::Map);
+    if (!root.IsMap())
+      return Status(StatusCode::kInvalidConfig,
+                    name + ":1:1: a config must be a YAML map of sections (dataset, train, ...)");
+    return root;
+  } catch (const YAML::ParserException& e) {
+    return Status(StatusCode::kInvalidConfig, name + ":" + std::to_string(e.mark.line + 1) + ":" +
+                                                  std::to_string(e.mark.column + 1) +
+                                                  ": YAML syntax error: " + e.msg);
+  }
+}
+
+// Strips positions from an override value so messages attribute it to --set.
+YAML::Node without_marks(const YAML::Node& n) {
+  if (n.IsScalar()) return YAML::Node(n.Scalar());
+  if (n.IsSequence()) {
+    YAML::Node out(YAML::NodeType::Sequence);
+    for (const auto& e : n) out.push_back(without_marks(e));
+    out.SetStyle(YAML::EmitterStyle::Flow);
+    return out;
+  }
+  if (n.IsMap()) {
+    YAML::Node out(YAML::NodeType::Map);
+    for (const auto& kv : n) out[kv.first.as<std::string>()] = without_marks(kv.second);
+    return out;
+  }
+  return YAML::Node();
+}
+
+}  // namespace
+
+const std::vector<ComponentSection>& component_sections() {
+  static const std::vector<ComponentSection> sections = {
+      {"entropy", CRPGS_KIND_ENTROPY, nullptr},
+      {"context", CRPGS_KIND_CONTEXT, nullptr},
+      {"links", CRPGS_KIND_CONTEXT, nullptr},
+      {"features", CRPGS_KIND_FEATURES, "identity"},
+      {"rasterizer", CRPGS_KIND_RASTERIZER, "cpu"},
+  };
+  return sections;
+}
+
+StatusOr<Config> Config::from_string(const std::string& yaml_text, const std::string& name) {
+  CRPGS_ASSIGN_OR_RETURN(YAML::Node root, parse_yaml(yaml_text, name));
+  Config c;
+  c.root_ = root;
+  c.src_.file = name;
+  return c;
+}
+
+StatusOr<Config> Config::load_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Status(StatusCode::kIoError, "cannot open config file " + path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return from_string(ss.str(), path);
+}
+
+Status Config::apply_override(const std::string& assignment) {
+  const auto eq = assignment.find('=');
+  if (eq == std::string::npos || eq == 0)
+    return Status(StatusCode::kInvalidArgument,
+                  "--set '" + assignment + "': expected key.path=value, e.g. train.iterations=1000");
+  const std::string path = assignment.substr(0, eq), text = assignment.substr(eq + 1);
+  std::vector<std::string> keys;
+  std::stringstream ps(path);
+  for (std::string k; std::getline(ps, k, '.');) {
+    if (k.empty()) return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
+    keys.push_back(k);
+  }
+  YAML::Node value;
+  try {
+    value = without_marks(YAML::Load(text));
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidArgument, "--set " + path + ": value does not parse: " + e.msg);
+  }
+  // Walk/create maps; yaml-cpp nodes are handles, so assignment through `cur` edits root_.
+  std::vector<YAML::Node> chain{root_};
+  for (size_t i = 0; i + 1 < keys.size(); ++i) {
+    YAML::Node next = chain.back()[keys[i]];
+    if (next.IsDefined() && !next.IsNull() && !next.IsMap())
+      return Status(StatusCode::kInvalidArgument,
+                    "--set " + path + ": '" + keys[i] + "' is not a map in the config");
+    if (!next.IsDefined() || next.IsNull()) {
+      chain.back()[keys[i]] = YAML::Node(YAML::NodeType::Map);
+      next = chain.back()[keys[i]];
+    }
+    chain.push_back(next);
+  }
+  chain.back()[keys.back()] = value;
+  return OkStatus();
+}
+
+StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
+  auto err = [&](const YAML::Node& at, const std::string& msg) {
+    return Status(StatusCode::kInvalidConfig, src_.describe(at) + ": " + msg);
+  };
+  Config out;
+  out.src_ = src_;
+  out.root_ = YAML::Node(YAML::NodeType::Map);
+
+  std::vector<std::string> valid;
+  for (const auto& s : core_sections()) valid.push_back(s.key);
+  for (const auto& s : component_sections()) valid.push_back(s.key);
+  for (const auto& kv : root_) {
+    const std::string key = kv.first.as<std::string>();
+    if (std::find(valid.begin(), valid.end(), key) == valid.end())
+      return err(kv.first, key + ": unknown section (valid sections: " + join(valid) + ")");
+  }
+
+  for (const auto& s : core_sections()) {
+    CRPGS_ASSIGN_OR_RETURN(YAML::Node block, validate_block(root_[s.key], s.schema, s.key, src_));
+    out.root_[s.key] = block;
+  }
+
+  for (const auto& s : component_sections()) {
+    const YAML::Node block = root_[s.key];
+    std::string type;
+    if (!block.IsDefined() || block.IsNull()) {
+      if (!s.default_type) continue;
+      type = s.default_type;
+    } else {
+      if (!block.IsMap()) return err(block, std::string(s.key) + ": expected a map with a `type:` key");
+      const YAML::Node t = block["type"];
+      if (!t.IsDefined()) {
+        if (!s.default_type) return err(block, std::string(s.key) + ".type: missing; available: " +
+                                                   join(registry.types(s.kind)));
+        type = s.default_type;
+      } else if (!t.IsScalar()) {
+        return err(t, std::string(s.key) + ".type: expected a string");
+      } else {
+        type = t.Scalar();
+      }
+    }
+    const ComponentInfo* info = registry.find(s.kind, type);
+    if (!info) {
+      std::string where = join(registry.searched_dirs());
+      return err(block.IsDefined() && block["type"] ? block["type"] : block,
+                 std::string(s.key) + ".type: unknown " + kind_name(s.kind) + " type '" + type +
+                     "' (available: " + join(registry.types(s.kind)) + "; plugins searched in: " +
+                     (where.empty() ? std::string("no directories") : where) + ")");
+    }
+    CRPGS_ASSIGN_OR_RETURN(YAML::Node params,
+                           validate_block(block, info->schema, s.key, src_, {"type"}));
+    YAML::Node resolved(YAML::NodeType::Map);
+    resolved["type"] = type;
+    for (const auto& kv : params) resolved[kv.first.as<std::string>()] = kv.second;
+    out.root_[s.key] = resolved;
+  }
+  return out;
+}
+
+std::string Config::dump() const {
+  YAML::Emitter e;
+  e << root_;
+  return std::string(e.c_str()) + "\n";
+}
+
+Status Config::save(const std::string& path) const { return write_file_atomic(path, dump()); }
+
+uint64_t Config::hash() const {
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : dump()) h = (h ^ c) * 1099511628211ull;
+  return h;
+}
+
+}  // namespace crpgs
