@@ -1,1 +1,2 @@
 # Test sources of tests/core (paths relative to tests/).
+list(APPEND CRPGS_BASE_TEST_SOURCES core/test_config.cpp)

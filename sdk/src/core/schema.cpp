@@ -236,10 +236,10 @@ StatusOr<YAML::Node> validate_block(const YAML::Node& block, const Schema& schem
   auto err = [&](const YAML::Node& at, const std::string& msg) {
     return Status(StatusCode::kInvalidConfig, mark_of(at, src) + ": " + msg);
   };
-  if (block.IsDefined() && !block.IsNull() && !block.IsMap())
-    return err(block, path + ": expected a map of parameters");
+  const bool present = block.IsDefined() && !block.IsNull();
+  if (present && !block.IsMap()) return err(block, path + ": expected a map of parameters");
   YAML::Node resolved(YAML::NodeType::Map);
-  if (block.IsMap()) {
+  if (present) {
     for (const auto& kv : block) {
       const std::string key = kv.first.as<std::string>();
       if (std::find(allowed_extra.begin(), allowed_extra.end(), key) != allowed_extra.end()) continue;

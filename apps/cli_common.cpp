@@ -1,0 +1,45 @@
+/// @file cli_common.cpp
+#include "cli_common.h"
+
+#include <algorithm>
+
+namespace crpgs::cli {
+
+ComponentRegistry load_registry(const GlobalOptions& g) {
+  ComponentRegistry r = builtin_registry();
+  r.load_plugins(default_plugin_dirs(g.plugin_dirs));
+  return r;
+}
+
+StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
+                             const ComponentRegistry& registry, const std::string& fallback_yaml) {
+  StatusOr<Config> cfg = path.empty() ? Config::from_string(fallback_yaml, "<built-in config>")
+                                      : Config::load_file(path);
+  if (!cfg.ok()) return cfg.status();
+  for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(cfg->apply_override(s));
+  return cfg->resolve(registry);
+}
+
+void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out) {
+  std::vector<size_t> width;
+  for (const auto& r : rows)
+    for (size_t i = 0; i < r.size(); ++i) {
+      if (width.size() <= i) width.push_back(0);
+      width[i] = std::max(width[i], r[i].size());
+    }
+  for (const auto& r : rows) {
+    std::string line;
+    for (size_t i = 0; i < r.size(); ++i) {
+      line += r[i];
+      if (i + 1 < r.size()) line += std::string(width[i] - r[i].size() + 2, ' ');
+    }
+    std::fprintf(out, "%s\n", line.c_str());
+  }
+}
+
+int report_error(const Status& st) {
+  std::fprintf(stderr, "crpgs: error: %s\n", st.message().c_str());
+  return 1;
+}
+
+}  // namespace crpgs::cli

@@ -1,0 +1,33 @@
+/// @file progress_bar.h
+/// @brief Terminal progress: a redrawn bar with rate and ETA on a TTY, plain throttled lines
+/// otherwise (logs, CI). The SDK reports through callbacks; only the CLI prints.
+#pragma once
+
+#include <chrono>
+#include <cstdio>
+#include <string>
+
+namespace crpgs::cli {
+
+class ProgressBar {
+ public:
+  ProgressBar(std::string label, long total, FILE* out = stderr);
+  ~ProgressBar();
+  /// `done` units finished; `extra` is shown after the rate (loss, PSNR, ...).
+  void update(long done, const std::string& extra = "");
+  void finish(const std::string& extra = "");
+
+ private:
+  void draw(long done, const std::string& extra, bool final);
+  std::string label_;
+  long total_;
+  FILE* out_;
+  bool tty_;
+  bool finished_ = false;
+  std::chrono::steady_clock::time_point start_, last_draw_;
+};
+
+/// "1m23s", "4.2s".
+std::string format_duration(double seconds);
+
+}  // namespace crpgs::cli
