@@ -16,22 +16,22 @@
 namespace crpgs {
 
 struct View {
-  Camera camera;     ///< intrinsics already match `image`
-  Image image;       ///< RGB float in [0,1] (RGBA composited on the background)
-  int index = 0;     ///< position in the sorted full list (train and test together)
+  Camera camera;  ///< intrinsics already match `image`
+  Image image;    ///< RGB float in [0,1] (RGBA composited on the background)
+  int index = 0;  ///< position in the sorted full list (train and test together)
 };
 
 struct DatasetOptions {
-  std::string path;               ///< dataset root
-  std::string format = "auto";    ///< auto | colmap | nerf_synthetic | instant_ngp | llff
-  std::string images = "";        ///< image folder name; "" = format default (images)
-  int downscale = 1;              ///< integer downscale factor applied on load
-  int max_width = 0;              ///< >0: downscale further so width <= max_width
-  int test_every = 8;             ///< every Nth image (idx % N == 0) is a test view; 0 = none
+  std::string path;             ///< dataset root
+  std::string format = "auto";  ///< auto | colmap | nerf_synthetic | instant_ngp | llff
+  std::string images = "";      ///< image folder name; "" = format default (images)
+  int downscale = 1;            ///< integer downscale factor applied on load
+  int max_width = 0;            ///< >0: downscale further so width <= max_width
+  int test_every = 8;           ///< every Nth image (idx % N == 0) is a test view; 0 = none
   std::array<float, 3> background{0.f, 0.f, 0.f};  ///< for RGBA images
-  int max_images = 0;             ///< >0: load at most this many views per split (quick runs)
-  bool load_images = true;        ///< false: cameras only (sizes read from image headers)
-  int threads = 2;                ///< image decoding threads (results are in a fixed order)
+  int max_images = 0;       ///< >0: load at most this many views per split (quick runs)
+  bool load_images = true;  ///< false: cameras only (sizes read from image headers)
+  int threads = 2;          ///< image decoding threads (results are in a fixed order)
 };
 
 struct Dataset {

@@ -1,1 +1,8 @@
 # Sources of sdk/src/io (paths relative to sdk/).
+list(APPEND CRPGS_BASE_SOURCES
+  src/io/image.cpp
+  src/io/metrics.cpp
+  src/io/json.cpp
+  src/io/npy.cpp
+  src/io/colmap.cpp
+  src/io/dataset.cpp)
