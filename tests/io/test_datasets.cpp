@@ -2,6 +2,7 @@
 /// @brief The shared datasets: fern (COLMAP binary and LLFF) and lego (NeRF-synthetic).
 #include <gtest/gtest.h>
 
+#include <Eigen/LU>
 #include <cmath>
 #include <filesystem>
 
@@ -104,6 +105,7 @@ TEST_F(Fern, LlffPosesMatchColmapPoses) {
     EXPECT_NEAR(a.fx, b.fx, 0.01);
     EXPECT_NEAR(a.cx, b.cx, 1e-6);
     EXPECT_EQ(b.width, 504);
+    EXPECT_NEAR(b.R.determinant(), 1.0, 1e-6) << b.name;
   }
   // The whole trajectory spans something: the check above is not comparing zeros.
   EXPECT_GT((vc.front()->camera.center() - vc.back()->camera.center()).norm(), 0.1);
@@ -123,10 +125,12 @@ TEST(Lego, LoadsTrainAndValAsTestWithFovIntrinsics) {
   const std::string root = test::shared_data("lego");
   if (!fs::exists(fs::path(root) / "transforms_train.json"))
     GTEST_SKIP() << "shared dataset lego not found at " << root;
+  // All 200 cameras from the image headers (decoding 200 800x800 RGBA PNGs takes seconds).
   DatasetOptions o;
   o.path = root;
-  o.downscale = 4;  // 200x200 keeps the test light; full-res intrinsics checked below too
+  o.downscale = 4;  // 200x200
   o.background = {1, 1, 1};
+  o.load_images = false;
   auto ds = load_dataset(o);
   ASSERT_TRUE(ds.ok()) << ds.status().message();
   EXPECT_EQ(ds->format, "nerf_synthetic");
@@ -136,29 +140,50 @@ TEST(Lego, LoadsTrainAndValAsTestWithFovIntrinsics) {
   for (const auto& w : ds->warnings) warned |= contains(w, "val views as the test split");
   EXPECT_TRUE(warned);
   EXPECT_TRUE(ds->points.empty());
+  EXPECT_EQ(ds->train[0].camera.name, "r_0.png");
+  EXPECT_EQ(ds->test[0].camera.name, "r_0.png");
+  EXPECT_EQ(ds->test[0].index, 100);
   const double angle = 0.6911112070083618;
   for (const View* v : all_views(*ds)) {
     const Camera& c = v->camera;
-    EXPECT_EQ(v->image.width, 200);
+    EXPECT_EQ(c.width, 200);
     EXPECT_NEAR(c.fx, 0.5 * 200 / std::tan(0.5 * angle), 1e-6);
     EXPECT_NEAR(c.cx, 100.0, 1e-9);
     EXPECT_NEAR(c.center().norm(), 4.0311, 1e-3);
+    // A proper rotation (a wrong axis flip would give a reflection, det = -1).
+    EXPECT_NEAR(c.R.determinant(), 1.0, 1e-5) << c.name;
+    EXPECT_LT((c.R * c.R.transpose() - Eigen::Matrix3d::Identity()).norm(), 1e-5) << c.name;
     // Every camera looks at the object at the origin: it projects near the image centre.
     const Eigen::Vector3d p = c.t;  // R·0 + t
     ASSERT_GT(p.z(), 0) << c.name;
     EXPECT_NEAR(c.fx * p.x() / p.z() + c.cx, 100, 20) << c.name;
     EXPECT_NEAR(c.fy * p.y() / p.z() + c.cy, 100, 20) << c.name;
   }
-  // Corner pixels are transparent in lego: composited onto the white background.
-  EXPECT_NEAR(ds->train[0].image.at(0, 0, 0), 1.f, 1e-6);
-  EXPECT_EQ(ds->train[0].camera.name, "r_0.png");
-  EXPECT_EQ(ds->test[0].index, 100);
+
+  // Pixels of a few views per split: RGBA composited onto the white background.
+  o.load_images = true;
+  o.max_images = 3;
+  auto px = load_dataset(o);
+  ASSERT_TRUE(px.ok()) << px.status().message();
+  ASSERT_EQ(px->train.size(), 3u);
+  ASSERT_EQ(px->test.size(), 3u);
+  for (const View* v : all_views(*px)) {
+    ASSERT_EQ(v->image.width, 200);
+    ASSERT_EQ(v->image.channels, 3);
+    EXPECT_NEAR(v->image.at(0, 0, 0), 1.f, 1e-6);  // transparent corner
+    double mean = 0;
+    for (float x : v->image.pixels) mean += x;
+    EXPECT_LT(mean / v->image.pixels.size(), 0.95);  // the object is there, not all background
+  }
+  EXPECT_EQ(px->train[2].camera.name, ds->train[2].camera.name);
+  EXPECT_DOUBLE_EQ(px->train[2].camera.fx, ds->train[2].camera.fx);
 
   o.downscale = 1;
   o.load_images = false;
+  o.max_images = 0;
   auto full = load_dataset(o);
   ASSERT_TRUE(full.ok());
-  EXPECT_NEAR(full->train[5].camera.fx, 0.5 * 800 / std::tan(0.5 * angle), 1e-6);  // ≈ 1111.11
+  EXPECT_NEAR(full->train[5].camera.fx, 0.5 * 800 / std::tan(0.5 * angle), 1e-6);
   EXPECT_NEAR(full->train[5].camera.fx, 1111.1111, 1e-3);
 }
 

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <Eigen/LU>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -229,6 +230,11 @@ TEST(NerfSynthetic, RgbaCompositedFovIntrinsicsAndValAsTestWhenTestImagesAbsent)
   EXPECT_NEAR(z, 4.0, 1e-12);
   EXPECT_NEAR(p.x(), 8.0, 1e-9);
   EXPECT_NEAR(p.y(), 8.0, 1e-9);
+  // World +x is image right and world +y (OpenGL up) is image up, i.e. smaller v.
+  const Eigen::Vector2d q = project(v.camera, Eigen::Vector3d(1, 1, 0));
+  EXPECT_NEAR(q.x(), 8.0 + v.camera.fx / 4, 1e-9);
+  EXPECT_NEAR(q.y(), 8.0 - v.camera.fy / 4, 1e-9);
+  EXPECT_NEAR(v.camera.R.determinant(), 1.0, 1e-12);
 
   // Some but not all test images present: an error, not a silent fallback.
   test::write_bytes(
