@@ -1,0 +1,157 @@
+/// @file trainer.h
+/// @brief Training and evaluation of the anchor model. `setup_training` wires dataset, model,
+/// components and rasterizer from a resolved config; `Trainer::train` runs the loop, reports
+/// through a ProgressCallback, writes checkpoints atomically and resumes bit-identically.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <torch/types.h>
+
+#include "crpgs/anchor_model.h"
+#include "crpgs/config.h"
+#include "crpgs/dataset.h"
+#include "crpgs/progress.h"
+#include "crpgs/rasterizer.h"
+#include "crpgs/registry.h"
+#include "crpgs/status.h"
+
+namespace crpgs {
+
+/// Phase boundaries in iterations (method.md §1.4, §2.3). Densification statistics run for
+/// start_stat < it < update_until; anchors are adjusted when it > update_from and
+/// it % update_interval == 0, except for pause_from <= it < pause_until.
+struct Schedule {
+  int iterations = 30000;
+  int start_stat = 500;
+  int update_from = 1500;
+  int update_interval = 100;
+  int update_until = 15000;
+  int pause_from = 3000, pause_until = 4000;
+  int quant_start = 3000;  ///< HAC: noise-quantised attributes from here (rate path)
+  int rate_start = 10000;  ///< HAC: rate and mask terms after this
+  /// HAC's 30k schedule.
+  static Schedule full();
+  /// Every boundary (and the iteration count) of full() multiplied by `factor` (0 < f <= 1),
+  /// rounded, with update_interval >= 1.
+  static Schedule scaled(double factor);
+};
+
+struct TrainOptions {
+  Schedule schedule;
+  uint64_t seed = 0;
+  double lambda_dssim = 0.2;
+  double lambda_scaling = 0.01;
+  int eval_interval = 1000;        ///< held-out PSNR every N iterations; 0 = never
+  int checkpoint_interval = 5000;  ///< 0 = only on request / at the end
+  int threads = 0;                 ///< at::set_num_threads; 0 = all cores
+  std::string output_dir;          ///< checkpoints go to output_dir/checkpoint.pt; "" = none
+};
+
+struct ViewMetrics {
+  std::string name;
+  double psnr = 0;  ///< dB, on the 8-bit round trip
+  double ssim = 0;
+};
+
+struct EvalResult {
+  std::vector<ViewMetrics> views;
+  double mean_psnr = 0;
+  double mean_ssim = 0;
+  double seconds_per_view = 0;  ///< rendering only
+};
+
+/// Wall-clock split of the iterations run so far (seconds, summed).
+struct StepTimes {
+  double generate = 0;   ///< prefilter + MLPs (forward)
+  double render = 0;     ///< rasterizer forward
+  double loss = 0;       ///< loss forward
+  double backward = 0;   ///< the whole backward pass (rasterizer + MLPs + loss)
+  double optimizer = 0;  ///< statistics, growing/pruning, Adam
+  int iterations = 0;
+};
+
+class Trainer {
+ public:
+  /// `dataset.train` must be non-empty. The model must have been created for this dataset.
+  Trainer(TrainOptions options, Dataset dataset, std::shared_ptr<Rasterizer> rasterizer,
+          std::unique_ptr<AnchorModel> model, torch::Generator gen);
+  ~Trainer();
+
+  /// Runs until schedule.iterations (from the current iteration). Writes checkpoints every
+  /// checkpoint_interval iterations and at the end (when output_dir is set). When `control->stop`
+  /// becomes true, writes a checkpoint and returns kCancelled; `control->save` saves and goes on.
+  Status train(ProgressCallback* progress = nullptr, TrainControl* control = nullptr);
+  /// One iteration (iteration() + 1). Returns the loss.
+  StatusOr<double> step();
+  int iteration() const { return iteration_; }
+
+  /// Writes everything needed to resume (model, optimizer, statistics, RNG, iteration) via a
+  /// temporary file and rename.
+  Status save_checkpoint(const std::string& path) const;
+  Status load_checkpoint(const std::string& path);
+  /// output_dir/checkpoint.pt, or "" without an output dir.
+  std::string checkpoint_path() const;
+
+  /// Renders the dataset's test views (or `views` when given) and measures them.
+  StatusOr<EvalResult> evaluate(const std::string& png_dir = "");
+  /// PSNR (8-bit round trip) of one view.
+  double view_psnr(const View& view);
+
+  AnchorModel& model() { return *model_; }
+  const Dataset& dataset() const { return dataset_; }
+  Rasterizer& rasterizer() { return *rasterizer_; }
+  const TrainOptions& options() const { return options_; }
+  const StepTimes& times() const { return times_; }
+  int64_t last_gaussian_count() const { return last_gaussians_; }
+
+ private:
+  int view_for_iteration(int iteration) const;
+  TrainOptions options_;
+  Dataset dataset_;
+  std::shared_ptr<Rasterizer> rasterizer_;
+  std::unique_ptr<AnchorModel> model_;
+  torch::Generator gen_;
+  int iteration_ = 0;
+  StepTimes times_;
+  int64_t last_gaussians_ = 0;
+  double last_l1_ = 0;
+  std::vector<torch::Tensor> train_images_;  // [H, W, 3] per train view
+};
+
+/// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip
+/// (method.md §4); writes `<png_dir>/<name>.png` (render) and `<name>_gt.png` when png_dir is set.
+StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
+                                    const std::vector<View>& views, const std::string& png_dir);
+
+/// Reads the `scene`, `model` and `train` sections of a resolved config.
+StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved);
+StatusOr<TrainOptions> train_options_from_config(const Config& resolved);
+
+struct SetupOptions {
+  std::string output_dir;  ///< overrides nothing in the config; where checkpoints go
+  bool resume = false;     ///< continue from output_dir/checkpoint.pt if it exists
+};
+
+/// Wires everything from a resolved config: dataset (or the synthetic scene), rasterizer and
+/// feature model from the registry, the anchor model, the trainer; optionally resumes.
+StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
+                                                  const ComponentRegistry& registry,
+                                                  const SetupOptions& setup);
+
+/// The same from already-built parts (tests, benchmarks, embedding applications).
+StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_options,
+                                                const AnchorModelOptions& model_options,
+                                                Dataset dataset,
+                                                std::shared_ptr<Rasterizer> rasterizer,
+                                                std::shared_ptr<FeatureModel> features);
+
+/// Differentiable SSIM (11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero
+/// padding, mean over the map). a, b: [H, W, C].
+torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b);
+/// PSNR in dB of [H, W, C] images in [0, 1].
+double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b);
+
+}  // namespace crpgs

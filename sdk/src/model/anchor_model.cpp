@@ -1,0 +1,668 @@
+/// @file anchor_model.cpp
+/// @brief Anchor model: initialisation, neural Gaussian generation, statistics, growing and
+/// pruning, and a small Adam whose per-row state is grown and pruned with the anchors.
+#include "crpgs/anchor_model.h"
+
+#include <torch/torch.h>
+
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace crpgs {
+
+using torch::indexing::Slice;
+
+namespace {
+
+constexpr double kAdamBeta1 = 0.9, kAdamBeta2 = 0.999, kAdamEps = 1e-15;
+
+struct Mlp {
+  torch::Tensor w1, b1, w2, b2;
+  torch::Tensor forward(const torch::Tensor& x) const {
+    return torch::linear(torch::relu(torch::linear(x, w1, b1)), w2, b2);
+  }
+};
+
+// torch.nn.Linear's default init: kaiming_uniform(a=sqrt(5)) = U(-1/sqrt(in), 1/sqrt(in)) for
+// the weight and the bias; drawn from our generator so that runs are reproducible.
+void init_linear(torch::Tensor& w, torch::Tensor& b, int64_t in, int64_t out,
+                 torch::Generator& gen) {
+  const double bound = 1.0 / std::sqrt(double(in));
+  w = torch::empty({out, in}).uniform_(-bound, bound, gen);
+  b = torch::empty({out}).uniform_(-bound, bound, gen);
+}
+
+Mlp make_mlp(int64_t in, int64_t hidden, int64_t out, torch::Generator& gen) {
+  Mlp m;
+  init_linear(m.w1, m.b1, in, hidden, gen);
+  init_linear(m.w2, m.b2, hidden, out, gen);
+  return m;
+}
+
+// Straight-through binary mask: forward (sigmoid(l) > t), gradient of sigmoid (HAC get_mask).
+torch::Tensor ste_mask(const torch::Tensor& logits, double threshold) {
+  auto s = torch::sigmoid(logits);
+  return ((s > threshold).to(s.dtype()) - s).detach() + s;
+}
+
+// Voxel keys for set membership; coordinates are far inside +-2^20 for any sane voxel size.
+torch::Tensor cell_keys(const torch::Tensor& cells) {  // [N, 3] int64 -> [N]
+  auto c = cells.clamp(-(int64_t(1) << 20) + 1, (int64_t(1) << 20) - 1) + (int64_t(1) << 20);
+  return c.select(1, 0) * (int64_t(1) << 42) + c.select(1, 1) * (int64_t(1) << 21) + c.select(1, 2);
+}
+
+}  // namespace
+
+/// One optimised tensor with its schedule and Adam moments.
+struct ParamGroup {
+  std::string name;
+  std::string schedule;  // which lr schedule
+  torch::Tensor param;
+  torch::Tensor m, v;
+  int64_t step = 0;
+  double lr = 0;
+  bool per_anchor = false;  // rows follow the anchors (grown/pruned with them)
+};
+
+struct AnchorModel::Impl {
+  AnchorModelOptions opt;
+  std::shared_ptr<FeatureModel> features_model;
+  int K = 10;
+  double voxel = 0.01;
+  double spatial_lr_scale = 1.0;
+  torch::Tensor anchor;            // [N, 3]
+  torch::Tensor bounds;            // [2, 3] min, max (HAC update_anchor_bound)
+  std::vector<ParamGroup> groups;  // feature, offset, scaling, mask, mlp_*, appearance, fm.*
+  int i_feat = -1, i_offset = -1, i_scaling = -1, i_mask = -1, i_app = -1;
+  Mlp mlp_opacity, mlp_color, mlp_cov;
+  int mlp_first = -1;  // index of the first MLP group (12 tensors follow)
+  // Statistics (method.md §1.4).
+  torch::Tensor opacity_accum, anchor_demon;      // [N]
+  torch::Tensor offset_grad_accum, offset_denom;  // [N*K]
+
+  torch::Tensor& p(int i) { return groups[size_t(i)].param; }
+  const torch::Tensor& p(int i) const { return groups[size_t(i)].param; }
+
+  void add_group(const std::string& name, const std::string& schedule, torch::Tensor t,
+                 bool per_anchor) {
+    ParamGroup g;
+    g.name = name;
+    g.schedule = schedule;
+    g.param = t.detach().contiguous().requires_grad_(true);
+    g.m = torch::zeros_like(g.param);
+    g.v = torch::zeros_like(g.param);
+    g.per_anchor = per_anchor;
+    groups.push_back(std::move(g));
+  }
+  void bind_mlps() {
+    auto at = [&](int k) { return groups[size_t(mlp_first + k)].param; };
+    mlp_opacity = {at(0), at(1), at(2), at(3)};
+    mlp_cov = {at(4), at(5), at(6), at(7)};
+    mlp_color = {at(8), at(9), at(10), at(11)};
+  }
+  void reset_stats() {
+    const int64_t n = anchor.size(0);
+    opacity_accum = torch::zeros({n});
+    anchor_demon = torch::zeros({n});
+    offset_grad_accum = torch::zeros({n * K});
+    offset_denom = torch::zeros({n * K});
+  }
+  void lr_for(ParamGroup& g, int it) const;
+  void append_rows(ParamGroup& g, const torch::Tensor& rows) {
+    g.param = torch::cat({g.param.detach(), rows.to(g.param.dtype())}, 0).requires_grad_(true);
+    g.m = torch::cat({g.m, torch::zeros_like(rows)}, 0);
+    g.v = torch::cat({g.v, torch::zeros_like(rows)}, 0);
+  }
+  void keep_rows(ParamGroup& g, const torch::Tensor& idx) {
+    g.param = g.param.detach().index_select(0, idx).requires_grad_(true);
+    g.m = g.m.index_select(0, idx);
+    g.v = g.v.index_select(0, idx);
+  }
+  int64_t grow(const torch::Tensor& grads, const torch::Tensor& offset_mask, torch::Generator& gen);
+};
+
+namespace {
+double log_lerp(double a, double b, int it, int max_steps) {
+  if (a == b || a <= 0 || b <= 0) return a;
+  const double s = std::clamp(double(it) / std::max(1, max_steps), 0.0, 1.0);
+  return std::exp((1 - s) * std::log(a) + s * std::log(b));
+}
+}  // namespace
+
+void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
+  const LearningRates& lr = opt.lr;
+  const int T = lr.max_steps;
+  if (g.schedule == "feature")
+    g.lr = lr.feature;
+  else if (g.schedule == "scaling")
+    g.lr = lr.scaling;
+  else if (g.schedule == "offset")
+    g.lr = log_lerp(lr.offset_init * spatial_lr_scale, lr.offset_final * spatial_lr_scale, it, T);
+  else if (g.schedule == "mask")
+    g.lr = log_lerp(lr.mask_init * spatial_lr_scale, lr.mask_final * spatial_lr_scale, it, T);
+  else if (g.schedule == "mlp_opacity")
+    g.lr = log_lerp(lr.mlp_opacity_init, lr.mlp_opacity_final, it, T);
+  else if (g.schedule == "mlp_cov")
+    g.lr = log_lerp(lr.mlp_cov_init, lr.mlp_cov_final, it, T);
+  else if (g.schedule == "mlp_color")
+    g.lr = log_lerp(lr.mlp_color_init, lr.mlp_color_final, it, T);
+  else if (g.schedule == "appearance")
+    g.lr = log_lerp(lr.appearance_init, lr.appearance_final, it, T);
+  else
+    g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
+}
+
+torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points_in) {
+  auto pts = points_in.to(torch::kFloat).contiguous();
+  const int64_t n = pts.size(0);
+  auto out = torch::full({n}, 1e-7f);
+  if (n < 2) return out;
+  auto lo = std::get<0>(pts.min(0)), hi = std::get<0>(pts.max(0));
+  auto ext = (hi - lo).clamp_min(1e-6);
+  // Cell size: about 2 points per cell in the densest layout we expect (surfaces).
+  const double cell = std::max(ext.max().item<double>() / std::cbrt(double(n)) * 0.7, 1e-9);
+  const float* P = pts.data_ptr<float>();
+  const float lx = lo[0].item<float>(), ly = lo[1].item<float>(), lz = lo[2].item<float>();
+  const int64_t dims[3] = {int64_t(ext[0].item<double>() / cell) + 1,
+                           int64_t(ext[1].item<double>() / cell) + 1,
+                           int64_t(ext[2].item<double>() / cell) + 1};
+  const int64_t max_dim = std::max({dims[0], dims[1], dims[2]});
+  auto cell_of = [&](int64_t i, int axis) {
+    const float o = axis == 0 ? lx : axis == 1 ? ly : lz;
+    return std::min<int64_t>(int64_t((P[3 * i + axis] - o) / cell), dims[axis] - 1);
+  };
+  auto key = [&](int64_t x, int64_t y, int64_t z) { return (x * dims[1] + y) * dims[2] + z; };
+  std::vector<std::pair<int64_t, int64_t>> sorted(static_cast<size_t>(n));
+  for (int64_t i = 0; i < n; ++i)
+    sorted[size_t(i)] = {key(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), i};
+  std::sort(sorted.begin(), sorted.end());
+  float* O = out.data_ptr<float>();
+  at::parallel_for(0, n, 256, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const int64_t c[3] = {cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)};
+      double best[3] = {std::numeric_limits<double>::infinity(),
+                        std::numeric_limits<double>::infinity(),
+                        std::numeric_limits<double>::infinity()};
+      for (int64_t r = 0; r <= max_dim; ++r) {
+        for (int64_t dx = -r; dx <= r; ++dx) {
+          const int64_t x = c[0] + dx;
+          if (x < 0 || x >= dims[0]) continue;
+          for (int64_t dy = -r; dy <= r; ++dy) {
+            const int64_t y = c[1] + dy;
+            if (y < 0 || y >= dims[1]) continue;
+            for (int64_t dz = -r; dz <= r; ++dz) {
+              if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != r) continue;
+              const int64_t z = c[2] + dz;
+              if (z < 0 || z >= dims[2]) continue;
+              const int64_t k = key(x, y, z);
+              auto it =
+                  std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, int64_t(-1)));
+              for (; it != sorted.end() && it->first == k; ++it) {
+                const int64_t j = it->second;
+                if (j == i) continue;
+                const double ddx = P[3 * j] - P[3 * i], ddy = P[3 * j + 1] - P[3 * i + 1],
+                             ddz = P[3 * j + 2] - P[3 * i + 2];
+                double d = ddx * ddx + ddy * ddy + ddz * ddz;
+                for (int q = 0; q < 3; ++q)
+                  if (d < best[q]) std::swap(d, best[q]);
+              }
+            }
+          }
+        }
+        // Points outside the shells seen so far are at least r*cell away.
+        const double reach = double(r) * cell;
+        if (best[2] <= reach * reach) break;
+      }
+      double sum = 0;
+      int cnt = 0;
+      for (double b : best)
+        if (std::isfinite(b)) sum += b, ++cnt;
+      O[i] = std::max(float(cnt ? sum / 3.0 : 1e-7), 1e-7f);
+    }
+  });
+  return out;
+}
+
+AnchorModel::AnchorModel(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+AnchorModel::~AnchorModel() = default;
+
+StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOptions& options,
+                                                           std::shared_ptr<FeatureModel> features,
+                                                           const AnchorInit& init,
+                                                           torch::Generator gen) {
+  if (!features) return Status(StatusCode::kInvalidArgument, "anchor model: no feature model");
+  if (options.n_offsets < 1 || options.hidden_dim < 1)
+    return Status(StatusCode::kInvalidArgument,
+                  "anchor model: n_offsets and hidden_dim must be >= 1");
+  if (options.effects.appearance_dim < 0)
+    return Status(StatusCode::kInvalidArgument, "scene.appearance_dim must be >= 0");
+  if (init.train_cameras.empty())
+    return Status(StatusCode::kInvalidArgument, "anchor model: no training cameras");
+  torch::NoGradGuard no_grad;
+  auto impl = std::make_unique<Impl>();
+  impl->opt = options;
+  impl->features_model = std::move(features);
+  impl->K = options.n_offsets;
+  const int K = impl->K;
+
+  // 1. Camera extent -> spatial lr scale (3DGS getNerfppNorm: 1.1 x max distance to the mean).
+  const int64_t n_cam = int64_t(init.train_cameras.size());
+  auto centers = torch::empty({n_cam, 3}, torch::kDouble);
+  for (int64_t i = 0; i < n_cam; ++i) {
+    const Eigen::Vector3d c = init.train_cameras[size_t(i)].center();
+    for (int a = 0; a < 3; ++a) centers[i][a] = c[a];
+  }
+  auto mean_c = centers.mean(0);
+  double radius = (centers - mean_c).norm(2, 1).max().item<double>() * 1.1;
+  if (!(radius > 1e-6)) radius = 1.0;
+  impl->spatial_lr_scale = radius;
+
+  // 2. Points: SfM, or random inside the cameras' bounds.
+  torch::Tensor pts;
+  if (!init.points.empty()) {
+    pts = torch::empty({int64_t(init.points.size()), 3});
+    auto acc = pts.accessor<float, 2>();
+    for (size_t i = 0; i < init.points.size(); ++i)
+      for (int a = 0; a < 3; ++a) acc[int64_t(i)][a] = init.points[i][size_t(a)];
+  } else {
+    const int64_t n = std::max(1, options.random_init_points);
+    pts = (torch::rand({n, 3}, gen) * 2 - 1) * (radius / 1.1) + mean_c.to(torch::kFloat);
+  }
+
+  // 3. Voxelise: unique(round(p / v)) * v (v automatic when voxel_size <= 0).
+  double v = options.voxel_size;
+  if (v <= 0) v = mean_sq_dist_3nn(pts).median().item<double>();
+  if (!(v > 0)) v = 1e-3;
+  impl->voxel = v;
+  auto cells = torch::round(pts / v).to(torch::kLong);
+  auto uniq = std::get<0>(at::unique_dim(cells, 0, /*sorted=*/true, false, false));
+  impl->anchor = uniq.to(torch::kFloat) * float(v);
+  const int64_t N = impl->anchor.size(0);
+
+  // 4. Bounds (HAC update_anchor_bound), fixed from here on.
+  auto mn = std::get<0>(impl->anchor.min(0)), mx = std::get<0>(impl->anchor.max(0));
+  mn = torch::where(mn < 0, mn * 1.2, mn * 0.8);
+  mx = torch::where(mx > 0, mx * 1.2, mx * 0.8);
+  impl->bounds = torch::stack({mn, mx});
+
+  // 5. Per-anchor parameters.
+  auto d2 = mean_sq_dist_3nn(impl->anchor).clamp_min(1e-7);
+  auto scaling = torch::log(torch::sqrt(d2)).unsqueeze(1).repeat({1, 6});
+  const int64_t dc = impl->features_model->coded_dim();
+  impl->add_group("feature", "feature", torch::zeros({N, dc}), true);
+  impl->i_feat = 0;
+  impl->add_group("offset", "offset", torch::zeros({N, K, 3}), true);
+  impl->i_offset = 1;
+  impl->add_group("scaling", "scaling", scaling, true);
+  impl->i_scaling = 2;
+  impl->add_group("mask", "mask", torch::ones({N, K}), true);
+  impl->i_mask = 3;
+
+  // 6. MLPs; the input width depends on which effects are on.
+  const SceneEffects& fx = options.effects;
+  const int64_t in = impl->features_model->feature_dim() + (fx.view_dependent ? 3 : 0) +
+                     (fx.distance_input ? 1 : 0);
+  const int64_t in_color = in + fx.appearance_dim;
+  const int64_t H = options.hidden_dim;
+  impl->mlp_first = int(impl->groups.size());
+  auto add_mlp = [&](const std::string& name, int64_t in_dim, int64_t out_dim) {
+    Mlp m = make_mlp(in_dim, H, out_dim, gen);
+    impl->add_group(name + ".w1", name, m.w1, false);
+    impl->add_group(name + ".b1", name, m.b1, false);
+    impl->add_group(name + ".w2", name, m.w2, false);
+    impl->add_group(name + ".b2", name, m.b2, false);
+  };
+  add_mlp("mlp_opacity", in, K);
+  add_mlp("mlp_cov", in, 7 * K);
+  add_mlp("mlp_color", in_color, 3 * K);
+  impl->bind_mlps();
+  if (fx.appearance_dim > 0) {
+    impl->i_app = int(impl->groups.size());
+    impl->add_group("appearance", "appearance",
+                    torch::randn({n_cam, int64_t(fx.appearance_dim)}, gen), false);
+  }
+  // 7. The feature model's own parameters (e.g. SFA's hash grid) share the optimizer.
+  int fm_index = 0;
+  for (auto& t : impl->features_model->parameters()) {
+    ParamGroup g;
+    g.name = "feature_model." + std::to_string(fm_index++);
+    g.schedule = "feature_model";
+    g.param = t;  // owned by the component; updated in place
+    g.m = torch::zeros_like(t);
+    g.v = torch::zeros_like(t);
+    impl->groups.push_back(std::move(g));
+  }
+  impl->reset_stats();
+  auto model = std::unique_ptr<AnchorModel>(new AnchorModel(std::move(impl)));
+  model->update_learning_rates(0);
+  return model;
+}
+
+int64_t AnchorModel::num_anchors() const {
+  return impl_->anchor.size(0);
+}
+int AnchorModel::n_offsets() const {
+  return impl_->K;
+}
+const AnchorModelOptions& AnchorModel::options() const {
+  return impl_->opt;
+}
+double AnchorModel::voxel_size() const {
+  return impl_->voxel;
+}
+double AnchorModel::spatial_lr_scale() const {
+  return impl_->spatial_lr_scale;
+}
+int64_t AnchorModel::mlp_input_dim() const {
+  return impl_->mlp_opacity.w1.size(1);
+}
+int64_t AnchorModel::color_input_dim() const {
+  return impl_->mlp_color.w1.size(1);
+}
+torch::Tensor AnchorModel::anchors() const {
+  return impl_->anchor;
+}
+torch::Tensor AnchorModel::features() const {
+  return impl_->p(impl_->i_feat);
+}
+torch::Tensor AnchorModel::offsets() const {
+  return impl_->p(impl_->i_offset);
+}
+torch::Tensor AnchorModel::scaling_raw() const {
+  return impl_->p(impl_->i_scaling);
+}
+torch::Tensor AnchorModel::mask_logits() const {
+  return impl_->p(impl_->i_mask);
+}
+torch::Tensor AnchorModel::positions01() const {
+  auto lo = impl_->bounds[0], hi = impl_->bounds[1];
+  return (impl_->anchor - lo) / (hi - lo).clamp_min(1e-9);
+}
+
+NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
+                                      Rasterizer& rasterizer, const RenderSettings& settings,
+                                      bool for_training) {
+  Impl& m = *impl_;
+  const int64_t K = m.K;
+  NeuralGaussians out;
+  auto scaling = torch::exp(m.p(m.i_scaling));  // [N, 6]
+  {
+    torch::NoGradGuard ng;
+    out.visible = rasterizer.visible_anchors(m.anchor, scaling.index({Slice(), Slice(0, 3)}),
+                                             camera, settings);
+  }
+  auto idx = out.visible.nonzero().squeeze(1);  // [M]
+  const int64_t M = idx.size(0);
+  auto anchor_v = m.anchor.index_select(0, idx);  // [M, 3]
+  auto feat = m.features_model->forward(m.p(m.i_feat).index_select(0, idx),
+                                        positions01().index_select(0, idx));  // [M, F]
+  std::vector<torch::Tensor> parts{feat};
+  const SceneEffects& fx = m.opt.effects;
+  if (fx.view_dependent || fx.distance_input) {
+    const Eigen::Vector3d c = camera.center();
+    auto cam = torch::tensor({float(c[0]), float(c[1]), float(c[2])});
+    auto d = anchor_v - cam;         // [M, 3]
+    auto dist = d.norm(2, 1, true);  // [M, 1]
+    if (fx.view_dependent) parts.push_back(d / dist);
+    if (fx.distance_input) parts.push_back(dist);
+  }
+  auto input = parts.size() == 1 ? feat : torch::cat(parts, 1);  // [M, C]
+  out.input = input;
+  auto opacity = torch::tanh(m.mlp_opacity.forward(input));  // [M, K]
+  if (m.opt.use_offset_mask)
+    opacity = opacity * ste_mask(m.p(m.i_mask).index_select(0, idx), m.opt.mask_threshold);
+  out.neural_opacity = opacity.detach();
+  auto color_in = input;
+  if (fx.appearance_dim > 0) {
+    auto& emb = m.p(m.i_app);
+    auto e = camera_index >= 0 && camera_index < emb.size(0) ? emb[camera_index] : emb.mean(0);
+    color_in = torch::cat({input, e.unsqueeze(0).expand({M, e.size(0)})}, 1);
+  }
+  auto color = torch::sigmoid(m.mlp_color.forward(color_in)).reshape({M * K, 3});
+  auto cov = m.mlp_cov.forward(input).reshape({M * K, 7});
+  auto flat_op = opacity.reshape({M * K});
+  out.selection = flat_op > 0;                     // [M*K]
+  auto keep = out.selection.nonzero().squeeze(1);  // [G]
+  out.source = (idx.unsqueeze(1) * K + torch::arange(K, idx.options()))
+                   .reshape({M * K})
+                   .index_select(0, keep);
+  auto anchor_of = keep.div(K, "floor");                              // row in the visible set
+  auto sc = scaling.index_select(0, idx).index_select(0, anchor_of);  // [G, 6]
+  auto offs = m.p(m.i_offset).index_select(0, idx).reshape({M * K, 3}).index_select(0, keep);
+  auto cv = cov.index_select(0, keep);  // [G, 7]
+  GaussianBatch& b = out.batch;
+  b.means = anchor_v.index_select(0, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
+  b.scales = sc.index({Slice(), Slice(3, 6)}) * torch::sigmoid(cv.index({Slice(), Slice(0, 3)}));
+  b.rotations = torch::nn::functional::normalize(
+      cv.index({Slice(), Slice(3, 7)}), torch::nn::functional::NormalizeFuncOptions().dim(1));
+  b.opacities = flat_op.index_select(0, keep);
+  b.colors = color.index_select(0, keep);
+  if (for_training) b.means2d_grad_holder = torch::zeros({keep.size(0), 2}).requires_grad_(true);
+  return out;
+}
+
+void AnchorModel::accumulate_statistics(const NeuralGaussians& g, const RenderOutput& out,
+                                        const Camera& camera) {
+  torch::NoGradGuard ng;
+  Impl& m = *impl_;
+  auto idx = g.visible.nonzero().squeeze(1);
+  m.opacity_accum.index_add_(0, idx, g.neural_opacity.clamp_min(0).sum(1));
+  m.anchor_demon.index_add_(0, idx, torch::ones({idx.size(0)}));
+  if (!g.batch.means2d_grad_holder.defined() || !g.batch.means2d_grad_holder.grad().defined())
+    return;
+  auto rendered = (out.radii > 0).nonzero().squeeze(1);  // [R]
+  // The thresholds (2e-4) are for gradients w.r.t. NDC as in 3DGS; our holder is in pixels.
+  auto grad = g.batch.means2d_grad_holder.grad().index_select(0, rendered);  // [R, 2]
+  auto to_ndc = torch::tensor({0.5f * float(camera.width), 0.5f * float(camera.height)});
+  auto norm = (grad * to_ndc).norm(2, 1);
+  auto src = g.source.index_select(0, rendered);
+  m.offset_grad_accum.index_add_(0, src, norm);
+  m.offset_denom.index_add_(0, src, torch::ones({src.size(0)}));
+}
+
+int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor& offset_mask,
+                                torch::Generator& gen) {
+  const int64_t init_length = anchor.size(0) * K;
+  int64_t grown = 0;
+  for (int i = 0; i < opt.update_depth; ++i) {
+    const double threshold =
+        opt.densify_grad_threshold * std::pow(double(opt.update_hierarchy_factor / 2), i);
+    auto cand = (grads >= threshold) & offset_mask;
+    auto rnd = torch::rand({cand.size(0)}, gen) > std::pow(0.5, i + 1);
+    cand = cand & rnd;
+    const int64_t inc = anchor.size(0) * K - init_length;
+    if (inc == 0) {
+      if (i > 0) continue;  // Scaffold-GS: deeper levels only after a level added anchors
+    } else {
+      cand = torch::cat({cand, torch::zeros({inc}, torch::kBool)});
+    }
+    auto scaling = torch::exp(p(i_scaling));
+    auto all_xyz = anchor.unsqueeze(1) +
+                   p(i_offset) * scaling.index({Slice(), Slice(0, 3)}).unsqueeze(1);  // [N,K,3]
+    int64_t size_factor = opt.update_init_factor;
+    for (int l = 0; l < i; ++l) size_factor /= opt.update_hierarchy_factor;
+    const double cur = voxel * double(size_factor);
+    auto grid = torch::round(anchor / cur).to(torch::kLong);  // [N, 3]
+    auto sel = cand.nonzero().squeeze(1);
+    if (sel.size(0) == 0) continue;
+    auto sel_grid =
+        torch::round(all_xyz.reshape({-1, 3}).index_select(0, sel) / cur).to(torch::kLong);
+    auto u = at::unique_dim(sel_grid, 0, true, true, false);
+    auto uniq = std::get<0>(u), inverse = std::get<1>(u);
+    auto fresh = ~torch::isin(cell_keys(uniq), cell_keys(grid));  // [U]
+    auto fresh_idx = fresh.nonzero().squeeze(1);
+    const int64_t n_new = fresh_idx.size(0);
+    if (n_new == 0) continue;
+    auto new_anchor = uniq.index_select(0, fresh_idx).to(torch::kFloat) * float(cur);
+    // Feature of a new anchor: channel-wise max over the parents whose Gaussians fell into it.
+    auto& feat = p(i_feat);
+    const int64_t D = feat.size(1);
+    auto parent_feat = feat.detach().index_select(0, sel.div(K, "floor"));  // [S, D]
+    auto pooled = torch::zeros({uniq.size(0), D})
+                      .scatter_reduce(0, inverse.unsqueeze(1).expand({-1, D}), parent_feat, "amax",
+                                      /*include_self=*/false);
+    append_rows(groups[size_t(i_feat)], pooled.index_select(0, fresh_idx));
+    append_rows(groups[size_t(i_offset)], torch::zeros({n_new, K, 3}));
+    append_rows(groups[size_t(i_scaling)], torch::full({n_new, 6}, std::log(cur)));
+    append_rows(groups[size_t(i_mask)], torch::ones({n_new, K}));
+    anchor = torch::cat({anchor, new_anchor}, 0);
+    opacity_accum = torch::cat({opacity_accum, torch::zeros({n_new})});
+    anchor_demon = torch::cat({anchor_demon, torch::zeros({n_new})});
+    grown += n_new;
+  }
+  return grown;
+}
+
+AdjustReport AnchorModel::adjust_anchors(int check_interval, torch::Generator gen) {
+  torch::NoGradGuard ng;
+  Impl& m = *impl_;
+  const int64_t K = m.K;
+  AdjustReport rep;
+  // 1. Grow from the average screen-space gradients of Gaussians seen often enough.
+  auto grads = (m.offset_grad_accum / m.offset_denom).nan_to_num(0.0, 0.0, 0.0);  // [N*K]
+  auto offset_mask = m.offset_denom > check_interval * m.opt.success_threshold * 0.5;
+  const int64_t n_before = m.anchor.size(0);
+  rep.grown = m.grow(grads, offset_mask, gen);
+  // 2. Reset the offset statistics that were used; pad for the new anchors.
+  m.offset_denom.masked_fill_(offset_mask, 0);
+  m.offset_grad_accum.masked_fill_(offset_mask, 0);
+  const int64_t pad = (m.anchor.size(0) - n_before) * K;
+  m.offset_denom = torch::cat({m.offset_denom, torch::zeros({pad})});
+  m.offset_grad_accum = torch::cat({m.offset_grad_accum, torch::zeros({pad})});
+  // 3. Prune anchors seen often whose Gaussians stayed (nearly) transparent.
+  auto seen = m.anchor_demon > check_interval * m.opt.success_threshold;
+  auto prune = (m.opacity_accum < m.opt.min_opacity * m.anchor_demon) & seen;
+  m.opacity_accum.masked_fill_(seen, 0);
+  m.anchor_demon.masked_fill_(seen, 0);
+  auto keep = (~prune).nonzero().squeeze(1);
+  rep.pruned = m.anchor.size(0) - keep.size(0);
+  if (rep.pruned > 0) {
+    m.offset_denom = m.offset_denom.view({-1, K}).index_select(0, keep).reshape({-1});
+    m.offset_grad_accum = m.offset_grad_accum.view({-1, K}).index_select(0, keep).reshape({-1});
+    m.opacity_accum = m.opacity_accum.index_select(0, keep);
+    m.anchor_demon = m.anchor_demon.index_select(0, keep);
+    m.anchor = m.anchor.index_select(0, keep);
+    for (auto& g : m.groups)
+      if (g.per_anchor) m.keep_rows(g, keep);
+  }
+  // 4. HAC quirk: after each prune step the base scales are clamped (log space, <= 0.05).
+  m.p(m.i_scaling).index({Slice(), Slice(3, 6)}).clamp_max_(0.05);
+  return rep;
+}
+
+void AnchorModel::reset_statistics() {
+  impl_->reset_stats();
+}
+
+void AnchorModel::update_learning_rates(int iteration) {
+  for (auto& g : impl_->groups) impl_->lr_for(g, iteration);
+}
+
+double AnchorModel::learning_rate(const std::string& group) const {
+  for (const auto& g : impl_->groups)
+    if (g.name == group || g.schedule == group) return g.lr;
+  return 0;
+}
+
+void AnchorModel::optimizer_step() {
+  torch::NoGradGuard ng;
+  for (auto& g : impl_->groups) {
+    if (!g.param.grad().defined()) continue;
+    const auto& grad = g.param.grad();
+    g.step += 1;
+    g.m.mul_(kAdamBeta1).add_(grad, 1 - kAdamBeta1);
+    g.v.mul_(kAdamBeta2).addcmul_(grad, grad, 1 - kAdamBeta2);
+    const double bc1 = 1 - std::pow(kAdamBeta1, double(g.step));
+    const double bc2 = 1 - std::pow(kAdamBeta2, double(g.step));
+    auto denom = (g.v.sqrt() / std::sqrt(bc2)).add_(kAdamEps);
+    g.param.addcdiv_(g.m, denom, -g.lr / bc1);
+  }
+  zero_grad();
+}
+
+void AnchorModel::zero_grad() {
+  for (auto& g : impl_->groups)
+    if (g.param.grad().defined()) g.param.mutable_grad().reset();
+}
+
+std::vector<std::pair<std::string, torch::Tensor>> AnchorModel::named_parameters() const {
+  std::vector<std::pair<std::string, torch::Tensor>> out;
+  for (const auto& g : impl_->groups) out.emplace_back(g.name, g.param);
+  return out;
+}
+
+std::map<std::string, torch::Tensor> AnchorModel::state_dict() const {
+  const Impl& m = *impl_;
+  std::map<std::string, torch::Tensor> s;
+  s["anchor"] = m.anchor;
+  s["bounds"] = m.bounds;
+  s["voxel_size"] = torch::tensor(m.voxel, torch::kDouble);
+  s["spatial_lr_scale"] = torch::tensor(m.spatial_lr_scale, torch::kDouble);
+  s["stat.opacity_accum"] = m.opacity_accum;
+  s["stat.anchor_demon"] = m.anchor_demon;
+  s["stat.offset_grad_accum"] = m.offset_grad_accum;
+  s["stat.offset_denom"] = m.offset_denom;
+  for (const auto& g : m.groups) {
+    s["param." + g.name] = g.param.detach();
+    s["adam_m." + g.name] = g.m;
+    s["adam_v." + g.name] = g.v;
+    s["adam_step." + g.name] = torch::tensor(g.step, torch::kLong);
+  }
+  return s;
+}
+
+Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& s) {
+  Impl& m = *impl_;
+  auto get = [&](const std::string& k, torch::Tensor& dst) -> Status {
+    auto it = s.find(k);
+    if (it == s.end()) return Status(StatusCode::kCorruptBitstream, "checkpoint lacks '" + k + "'");
+    dst = it->second.clone();
+    return OkStatus();
+  };
+  // Validate shapes of the fixed-size tensors before changing anything.
+  for (const auto& g : m.groups) {
+    auto it = s.find("param." + g.name);
+    if (it == s.end())
+      return Status(StatusCode::kCorruptBitstream, "checkpoint lacks parameter '" + g.name + "'");
+    if (!g.per_anchor && it->second.sizes() != g.param.sizes())
+      return Status(StatusCode::kInvalidArgument,
+                    "checkpoint parameter '" + g.name +
+                        "' has a different shape than the model "
+                        "(was it trained with another scene/model config?)");
+    if (g.per_anchor && it->second.sizes().slice(1) != g.param.sizes().slice(1))
+      return Status(StatusCode::kInvalidArgument,
+                    "checkpoint parameter '" + g.name + "' has a different per-anchor shape");
+  }
+  torch::NoGradGuard ng;
+  CRPGS_RETURN_IF_ERROR(get("anchor", m.anchor));
+  CRPGS_RETURN_IF_ERROR(get("bounds", m.bounds));
+  torch::Tensor t;
+  CRPGS_RETURN_IF_ERROR(get("voxel_size", t));
+  m.voxel = t.item<double>();
+  CRPGS_RETURN_IF_ERROR(get("spatial_lr_scale", t));
+  m.spatial_lr_scale = t.item<double>();
+  CRPGS_RETURN_IF_ERROR(get("stat.opacity_accum", m.opacity_accum));
+  CRPGS_RETURN_IF_ERROR(get("stat.anchor_demon", m.anchor_demon));
+  CRPGS_RETURN_IF_ERROR(get("stat.offset_grad_accum", m.offset_grad_accum));
+  CRPGS_RETURN_IF_ERROR(get("stat.offset_denom", m.offset_denom));
+  for (auto& g : m.groups) {
+    torch::Tensor p;
+    CRPGS_RETURN_IF_ERROR(get("param." + g.name, p));
+    if (g.schedule == "feature_model") {
+      g.param.copy_(p);  // the component owns the tensor
+    } else {
+      g.param = p.requires_grad_(true);
+    }
+    CRPGS_RETURN_IF_ERROR(get("adam_m." + g.name, g.m));
+    CRPGS_RETURN_IF_ERROR(get("adam_v." + g.name, g.v));
+    CRPGS_RETURN_IF_ERROR(get("adam_step." + g.name, t));
+    g.step = t.item<int64_t>();
+  }
+  m.bind_mlps();
+  return OkStatus();
+}
+
+}  // namespace crpgs

@@ -1,0 +1,561 @@
+/// @file trainer.cpp
+/// @brief The training loop (HAC train.py order: lr update, render, loss, backward, statistics,
+/// growing/pruning, Adam), checkpoints, evaluation, and the wiring from a resolved config.
+#include "crpgs/trainer.h"
+
+#include <torch/torch.h>
+
+#include <ATen/CPUGeneratorImpl.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <numeric>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include "crpgs/atomic_file.h"
+#include "crpgs/components.h"
+#include "crpgs/metrics.h"
+#include "crpgs/scene_generator.h"
+
+namespace crpgs {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+torch::Tensor image_to_tensor(const Image& im) {  // -> [H, W, C] float
+  return torch::from_blob(const_cast<float*>(im.pixels.data()), {im.height, im.width, im.channels},
+                          torch::kFloat)
+      .clone();
+}
+
+Image tensor_to_image(const torch::Tensor& t) {  // [H, W, C]
+  auto c = t.detach().to(torch::kFloat).clamp(0, 1).contiguous();
+  Image im;
+  im.height = int(c.size(0));
+  im.width = int(c.size(1));
+  im.channels = int(c.size(2));
+  im.pixels.assign(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
+  return im;
+}
+
+torch::Tensor gaussian_window_1d() {  // [11], sigma 1.5, normalised
+  auto x = torch::arange(11, torch::kFloat) - 5;
+  auto g = torch::exp(-(x * x) / (2 * 1.5 * 1.5));
+  return g / g.sum();
+}
+
+// Keys in a torch archive cannot contain dots.
+std::string archive_key(const std::string& k) {
+  std::string s;
+  for (char c : k) s += c == '.' ? std::string("__") : std::string(1, c);
+  return s;
+}
+
+Schedule scale_schedule(double f) {
+  Schedule s = Schedule::full();
+  auto sc = [&](int v) { return int(std::lround(v * f)); };
+  s.iterations = std::max(1, sc(s.iterations));
+  s.start_stat = sc(s.start_stat);
+  s.update_from = sc(s.update_from);
+  s.update_interval = std::max(1, sc(s.update_interval));
+  s.update_until = sc(s.update_until);
+  s.pause_from = sc(s.pause_from);
+  s.pause_until = sc(s.pause_until);
+  s.quant_start = sc(s.quant_start);
+  s.rate_start = sc(s.rate_start);
+  return s;
+}
+
+}  // namespace
+
+Schedule Schedule::full() {
+  return Schedule{};
+}
+Schedule Schedule::scaled(double factor) {
+  return scale_schedule(factor);
+}
+
+torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b) {
+  const int64_t C = a.size(2);
+  auto x = a.permute({2, 0, 1}).unsqueeze(0);  // [1, C, H, W]
+  auto y = b.permute({2, 0, 1}).unsqueeze(0);
+  auto g = gaussian_window_1d().to(a.dtype());
+  auto wv = g.view({1, 1, 11, 1}).expand({C, 1, 11, 1}).contiguous();
+  auto wh = g.view({1, 1, 1, 11}).expand({C, 1, 1, 11}).contiguous();
+  // Separable 11x11 blur with zero padding (same as the 2-D conv with padding 5).
+  auto blur = [&](const torch::Tensor& t) {
+    auto o = torch::conv2d(t, wv, torch::Tensor(), at::IntArrayRef{1, 1}, at::IntArrayRef{5, 0},
+                           at::IntArrayRef{1, 1}, C);
+    return torch::conv2d(o, wh, torch::Tensor(), at::IntArrayRef{1, 1}, at::IntArrayRef{0, 5},
+                         at::IntArrayRef{1, 1}, C);
+  };
+  auto mu_x = blur(x), mu_y = blur(y);
+  auto mu_x2 = mu_x * mu_x, mu_y2 = mu_y * mu_y, mu_xy = mu_x * mu_y;
+  auto s_x = blur(x * x) - mu_x2, s_y = blur(y * y) - mu_y2, s_xy = blur(x * y) - mu_xy;
+  const double C1 = 0.01 * 0.01, C2 = 0.03 * 0.03;
+  auto map = ((2 * mu_xy + C1) * (2 * s_xy + C2)) / ((mu_x2 + mu_y2 + C1) * (s_x + s_y + C2));
+  return map.mean();
+}
+
+double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b) {
+  const double mse = (a.detach() - b.detach()).pow(2).mean().item<double>();
+  return mse > 0 ? -10.0 * std::log10(mse) : std::numeric_limits<double>::infinity();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Trainer
+
+Trainer::Trainer(TrainOptions options, Dataset dataset, std::shared_ptr<Rasterizer> rasterizer,
+                 std::unique_ptr<AnchorModel> model, torch::Generator gen)
+    : options_(std::move(options)),
+      dataset_(std::move(dataset)),
+      rasterizer_(std::move(rasterizer)),
+      model_(std::move(model)),
+      gen_(std::move(gen)) {
+  for (const auto& v : dataset_.train) train_images_.push_back(image_to_tensor(v.image));
+}
+
+Trainer::~Trainer() = default;
+
+int Trainer::view_for_iteration(int iteration) const {
+  // Deterministic from (seed, iteration) alone, so a resumed run sees the same views.
+  const int n = int(dataset_.train.size());
+  const int epoch = (iteration - 1) / n, pos = (iteration - 1) % n;
+  std::vector<int> perm(static_cast<size_t>(n));
+  std::iota(perm.begin(), perm.end(), 0);
+  std::mt19937_64 rng(options_.seed * 0x9E3779B97F4A7C15ull + uint64_t(epoch));
+  for (int i = n - 1; i > 0; --i) {  // Fisher-Yates with our own draw (portable)
+    const int j = int(rng() % uint64_t(i + 1));
+    std::swap(perm[size_t(i)], perm[size_t(j)]);
+  }
+  return perm[size_t(pos)];
+}
+
+StatusOr<double> Trainer::step() {
+  const int it = iteration_ + 1;
+  const Schedule& sc = options_.schedule;
+  const int v = view_for_iteration(it);
+  const View& view = dataset_.train[size_t(v)];
+  RenderSettings settings;
+  settings.background = model_->options().effects.background;
+  model_->update_learning_rates(it);
+
+  auto t0 = Clock::now();
+  NeuralGaussians ng = model_->generate(view.camera, v, *rasterizer_, settings, true);
+  auto t1 = Clock::now();
+  RenderOutput out = rasterizer_->render(ng.batch, view.camera, settings);
+  auto t2 = Clock::now();
+  const auto& gt = train_images_[size_t(v)];
+  auto l1 = (out.image - gt).abs().mean();
+  auto ssim = tensor_ssim(out.image, gt);
+  auto loss = (1.0 - options_.lambda_dssim) * l1 + options_.lambda_dssim * (1.0 - ssim);
+  if (ng.batch.scales.size(0) > 0)
+    loss = loss + options_.lambda_scaling * ng.batch.scales.prod(1).mean();
+  auto t3 = Clock::now();
+  if (loss.requires_grad()) loss.backward();
+  auto t4 = Clock::now();
+  {
+    torch::NoGradGuard no_grad;
+    if (it < sc.update_until && it > sc.start_stat) {
+      model_->accumulate_statistics(ng, out, view.camera);
+      const bool paused = it >= sc.pause_from && it < sc.pause_until;
+      if (!paused && it > sc.update_from && it % sc.update_interval == 0)
+        model_->adjust_anchors(sc.update_interval, gen_);
+    } else if (it == sc.update_until) {
+      model_->reset_statistics();
+    }
+    model_->optimizer_step();
+  }
+  auto t5 = Clock::now();
+  auto dt = [](Clock::time_point a, Clock::time_point b) {
+    return std::chrono::duration<double>(b - a).count();
+  };
+  times_.generate += dt(t0, t1);
+  times_.render += dt(t1, t2);
+  times_.loss += dt(t2, t3);
+  times_.backward += dt(t3, t4);
+  times_.optimizer += dt(t4, t5);
+  times_.iterations += 1;
+  last_gaussians_ = ng.batch.means.size(0);
+  last_l1_ = l1.item<double>();
+  iteration_ = it;
+  return loss.item<double>();
+}
+
+std::string Trainer::checkpoint_path() const {
+  if (options_.output_dir.empty()) return "";
+  return (std::filesystem::path(options_.output_dir) / "checkpoint.pt").string();
+}
+
+Status Trainer::save_checkpoint(const std::string& path) const {
+  try {
+    torch::serialize::OutputArchive ar;
+    for (const auto& kv : model_->state_dict())
+      ar.write(archive_key("model." + kv.first), kv.second);
+    ar.write("iteration", torch::tensor(int64_t(iteration_), torch::kLong));
+    ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
+    ar.write("rng", gen_.get_state());
+    std::ostringstream os;
+    ar.save_to(os);
+    const auto parent = std::filesystem::path(path).parent_path();
+    if (!parent.empty()) std::filesystem::create_directories(parent);
+    return write_file_atomic(path, os.str());
+  } catch (const std::exception& e) {
+    return Status(StatusCode::kIoError, "writing checkpoint " + path + ": " + e.what());
+  }
+}
+
+Status Trainer::load_checkpoint(const std::string& path) {
+  auto bytes = read_file_bytes(path);
+  if (!bytes.ok()) return bytes.status();
+  try {
+    torch::serialize::InputArchive ar;
+    ar.load_from(reinterpret_cast<const char*>(bytes->data()), bytes->size());
+    std::map<std::string, torch::Tensor> state;
+    for (const auto& kv : model_->state_dict()) {
+      torch::Tensor t;
+      if (!ar.try_read(archive_key("model." + kv.first), t))
+        return Status(StatusCode::kCorruptBitstream,
+                      path + ": checkpoint lacks '" + kv.first +
+                          "' (written by a different model configuration?)");
+      state[kv.first] = t;
+    }
+    CRPGS_RETURN_IF_ERROR(model_->load_state_dict(state));
+    torch::Tensor t;
+    ar.read("iteration", t);
+    iteration_ = int(t.item<int64_t>());
+    ar.read("rng", t);
+    gen_.set_state(t);
+  } catch (const std::exception& e) {
+    return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + path + ": " + e.what());
+  }
+  return OkStatus();
+}
+
+double Trainer::view_psnr(const View& view) {
+  torch::NoGradGuard no_grad;
+  RenderSettings settings;
+  settings.background = model_->options().effects.background;
+  NeuralGaussians ng = model_->generate(view.camera, -1, *rasterizer_, settings, false);
+  auto img = rasterizer_->render(ng.batch, view.camera, settings).image.clamp(0, 1);
+  auto q = [](const torch::Tensor& t) { return torch::round(t.clamp(0, 1) * 255) / 255; };
+  return tensor_psnr(q(img), q(image_to_tensor(view.image)));
+}
+
+Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
+  const Schedule& sc = options_.schedule;
+  const auto start = Clock::now();
+  const int first = iteration_;
+  auto last_report = Clock::now();
+  int last_report_it = iteration_;
+  double rate = 0;
+  const View* held_out = !dataset_.test.empty()
+                             ? &dataset_.test.front()
+                             : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
+  auto checkpoint = [&]() -> Status {
+    const std::string path = checkpoint_path();
+    if (path.empty()) return OkStatus();
+    CRPGS_RETURN_IF_ERROR(save_checkpoint(path));
+    if (progress) progress->on_checkpoint(iteration_, path);
+    return OkStatus();
+  };
+  while (iteration_ < sc.iterations) {
+    const int64_t anchors_before = model_->num_anchors();
+    auto loss = step();
+    if (!loss.ok()) return loss.status();
+    const int it = iteration_;
+    if (progress) {
+      TrainingProgress p;
+      p.iteration = it;
+      p.total_iterations = sc.iterations;
+      p.loss = loss.value();
+      p.l1 = last_l1_;
+      p.anchors = model_->num_anchors();
+      p.gaussians = last_gaussians_;
+      const double since = seconds_since(last_report);
+      if (since > 0.5 || it == first + 1) {
+        rate = since > 0 ? (it - last_report_it) / since : 0;
+        last_report = Clock::now();
+        last_report_it = it;
+      }
+      p.iterations_per_second = rate;
+      p.elapsed_seconds = seconds_since(start);
+      p.eta_seconds = rate > 0 ? (sc.iterations - it) / rate : 0;
+      if (held_out && options_.eval_interval > 0 &&
+          (it % options_.eval_interval == 0 || it == sc.iterations)) {
+        p.has_test_psnr = true;
+        p.test_psnr = view_psnr(*held_out);
+      }
+      if (p.anchors != anchors_before || (it > sc.update_from && it % sc.update_interval == 0))
+        progress->on_adjust(it, std::max<int64_t>(0, p.anchors - anchors_before),
+                            std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
+      progress->on_iteration(p);
+    }
+    if (options_.checkpoint_interval > 0 && it % options_.checkpoint_interval == 0 &&
+        it < sc.iterations)
+      CRPGS_RETURN_IF_ERROR(checkpoint());
+    if (control && control->save.exchange(false)) CRPGS_RETURN_IF_ERROR(checkpoint());
+    if (control && control->stop.load()) {
+      CRPGS_RETURN_IF_ERROR(checkpoint());
+      return Status(
+          StatusCode::kCancelled,
+          "training stopped at iteration " + std::to_string(it) +
+              (checkpoint_path().empty() ? std::string() : "; checkpoint " + checkpoint_path()));
+    }
+  }
+  return checkpoint();
+}
+
+StatusOr<EvalResult> Trainer::evaluate(const std::string& png_dir) {
+  return evaluate_views(*model_, *rasterizer_, dataset_.test, png_dir);
+}
+
+StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
+                                    const std::vector<View>& views, const std::string& png_dir) {
+  torch::NoGradGuard no_grad;
+  EvalResult res;
+  if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no views");
+  if (!png_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(png_dir, ec);
+    if (ec) return Status(StatusCode::kIoError, "cannot create " + png_dir + ": " + ec.message());
+  }
+  RenderSettings settings;
+  settings.background = model.options().effects.background;
+  double render_s = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const View& v = views[i];
+    auto t0 = Clock::now();
+    NeuralGaussians ng = model.generate(v.camera, -1, rasterizer, settings, false);
+    auto img = rasterizer.render(ng.batch, v.camera, settings).image;
+    render_s += seconds_since(t0);
+    // The protocol measures on the 8-bit PNG round trip of both images.
+    Image render = quantize_8bit(tensor_to_image(img));
+    Image gt = quantize_8bit(v.image);
+    auto p = psnr(render, gt);
+    if (!p.ok()) return p.status();
+    auto s = ssim(render, gt);
+    if (!s.ok()) return s.status();
+    char name[32];
+    std::snprintf(name, sizeof(name), "%05zu", i);
+    ViewMetrics m;
+    m.name = v.camera.name.empty() ? name : v.camera.name;
+    m.psnr = p.value();
+    m.ssim = s.value();
+    res.views.push_back(m);
+    if (!png_dir.empty()) {
+      const auto dir = std::filesystem::path(png_dir);
+      CRPGS_RETURN_IF_ERROR(save_png(render, (dir / (std::string(name) + ".png")).string()));
+      CRPGS_RETURN_IF_ERROR(save_png(gt, (dir / (std::string(name) + "_gt.png")).string()));
+    }
+  }
+  for (const auto& m : res.views) {
+    res.mean_psnr += m.psnr / double(res.views.size());
+    res.mean_ssim += m.ssim / double(res.views.size());
+  }
+  res.seconds_per_view = render_s / double(views.size());
+  return res;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Wiring
+
+namespace {
+
+template <typename T>
+T get(const YAML::Node& sec, const char* key, T fallback) {
+  return sec && sec[key] ? sec[key].as<T>() : fallback;
+}
+
+}  // namespace
+
+StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved) {
+  AnchorModelOptions o;
+  try {
+    const YAML::Node m = resolved.section("model");
+    o.n_offsets = get(m, "n_offsets", o.n_offsets);
+    o.hidden_dim = get(m, "hidden_dim", o.hidden_dim);
+    o.voxel_size = get(m, "voxel_size", o.voxel_size);
+    o.update_init_factor = get(m, "update_init_factor", o.update_init_factor);
+    o.update_hierarchy_factor = get(m, "update_hierarchy_factor", o.update_hierarchy_factor);
+    o.update_depth = get(m, "update_depth", o.update_depth);
+    o.densify_grad_threshold = get(m, "densify_grad_threshold", o.densify_grad_threshold);
+    o.min_opacity = get(m, "min_opacity", o.min_opacity);
+    o.success_threshold = get(m, "success_threshold", o.success_threshold);
+    o.use_offset_mask = get(m, "use_offset_mask", o.use_offset_mask);
+    o.mask_threshold = get(m, "mask_threshold", o.mask_threshold);
+    o.random_init_points = get(m, "random_init_points", o.random_init_points);
+    const YAML::Node s = resolved.section("scene");
+    o.effects.view_dependent = get(s, "view_dependent", o.effects.view_dependent);
+    o.effects.distance_input = get(s, "distance_input", o.effects.distance_input);
+    o.effects.appearance_dim = get(s, "appearance_dim", o.effects.appearance_dim);
+    if (s && s["background"]) {
+      auto bg = s["background"].as<std::vector<float>>();
+      if (bg.size() != 3)
+        return Status(StatusCode::kInvalidConfig, "scene.background: expected 3 values [r, g, b]");
+      o.effects.background = {bg[0], bg[1], bg[2]};
+    }
+    const YAML::Node t = resolved.section("train");
+    LearningRates& lr = o.lr;
+    lr.offset_init = get(t, "lr_offset", lr.offset_init);
+    lr.offset_final = get(t, "lr_offset_final", lr.offset_final);
+    lr.mask_init = get(t, "lr_mask", lr.mask_init);
+    lr.mask_final = get(t, "lr_mask_final", lr.mask_final);
+    lr.feature = get(t, "lr_feature", lr.feature);
+    lr.scaling = get(t, "lr_scaling", lr.scaling);
+    lr.mlp_opacity_init = get(t, "lr_mlp_opacity", lr.mlp_opacity_init);
+    lr.mlp_opacity_final = get(t, "lr_mlp_opacity_final", lr.mlp_opacity_final);
+    lr.mlp_cov_init = get(t, "lr_mlp_cov", lr.mlp_cov_init);
+    lr.mlp_cov_final = get(t, "lr_mlp_cov_final", lr.mlp_cov_final);
+    lr.mlp_color_init = get(t, "lr_mlp_color", lr.mlp_color_init);
+    lr.mlp_color_final = get(t, "lr_mlp_color_final", lr.mlp_color_final);
+    lr.appearance_init = get(t, "lr_appearance", lr.appearance_init);
+    lr.appearance_final = get(t, "lr_appearance_final", lr.appearance_final);
+    lr.feature_model_init = get(t, "lr_feature_model", lr.feature_model_init);
+    lr.feature_model_final = get(t, "lr_feature_model_final", lr.feature_model_final);
+    auto to = train_options_from_config(resolved);
+    if (!to.ok()) return to.status();
+    lr.max_steps = to->schedule.iterations;
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidConfig, std::string("model/scene config: ") + e.what());
+  }
+  return o;
+}
+
+StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
+  TrainOptions o;
+  try {
+    const YAML::Node t = resolved.section("train");
+    const std::string schedule = get<std::string>(t, "schedule", "full");
+    const double factor = get(t, "fast_factor", 0.1);
+    if (schedule == "fast") {
+      if (!(factor > 0 && factor <= 1))
+        return Status(StatusCode::kInvalidConfig, "train.fast_factor must be in (0, 1]");
+      o.schedule = Schedule::scaled(factor);
+    } else if (schedule == "full") {
+      o.schedule = Schedule::full();
+    } else {
+      return Status(StatusCode::kInvalidConfig,
+                    "train.schedule: unknown '" + schedule + "' (available: full, fast)");
+    }
+    const int iterations = get(t, "iterations", 0);
+    if (iterations > 0) o.schedule.iterations = iterations;
+    o.seed = get<uint64_t>(t, "seed", 0);
+    o.lambda_dssim = get(t, "lambda_dssim", o.lambda_dssim);
+    o.lambda_scaling = get(t, "lambda_scaling", o.lambda_scaling);
+    o.eval_interval = get(t, "eval_interval", o.eval_interval);
+    o.checkpoint_interval = get(t, "checkpoint_interval", o.checkpoint_interval);
+    o.threads = get(t, "threads", o.threads);
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidConfig, std::string("train config: ") + e.what());
+  }
+  return o;
+}
+
+StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_options,
+                                                const AnchorModelOptions& model_options,
+                                                Dataset dataset,
+                                                std::shared_ptr<Rasterizer> rasterizer,
+                                                std::shared_ptr<FeatureModel> features) {
+  if (!rasterizer) return Status(StatusCode::kInvalidArgument, "make_trainer: no rasterizer");
+  if (dataset.train.empty())
+    return Status(StatusCode::kInvalidArgument,
+                  "dataset '" + dataset.name + "' has no training views");
+  for (const auto& v : dataset.train)
+    if (v.image.channels != 3 || v.image.width != v.camera.width ||
+        v.image.height != v.camera.height)
+      return Status(StatusCode::kInvalidArgument,
+                    "view '" + v.camera.name + "': image must be RGB and match its camera size");
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(train_options.seed);
+  AnchorInit init;
+  for (const auto& p : dataset.points) init.points.push_back({p.x(), p.y(), p.z()});
+  for (const auto& v : dataset.train) init.train_cameras.push_back(v.camera);
+  auto model = AnchorModel::create(model_options, std::move(features), init, gen);
+  if (!model.ok()) return model.status();
+  return std::make_unique<Trainer>(train_options, std::move(dataset), std::move(rasterizer),
+                                   std::move(model).value(), gen);
+}
+
+StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
+                                                  const ComponentRegistry& registry,
+                                                  const SetupOptions& setup) {
+  // 1. Options from the resolved config.
+  CRPGS_ASSIGN_OR_RETURN(TrainOptions train_options, train_options_from_config(resolved));
+  CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions model_options, model_options_from_config(resolved));
+  train_options.output_dir = setup.output_dir;
+  // 2. Threads: libtorch starts with one here.
+  const int threads = train_options.threads > 0
+                          ? train_options.threads
+                          : std::max(1, int(std::thread::hardware_concurrency()));
+  at::set_num_threads(threads);
+  // 3. Components: rasterizer and feature model from the registry.
+  const crpgs_create_args args = create_args_for(resolved);
+  auto block = [&](const char* key, const char* type) {
+    YAML::Node b = resolved.section(key);
+    if (!b) {
+      b = YAML::Node(YAML::NodeType::Map);
+      b["type"] = type;
+    }
+    return b;
+  };
+  CRPGS_ASSIGN_OR_RETURN(std::shared_ptr<Rasterizer> rasterizer,
+                         create_component<Rasterizer>(registry, block("rasterizer", "cpu"), args));
+  CRPGS_ASSIGN_OR_RETURN(
+      std::shared_ptr<FeatureModel> features,
+      create_component<FeatureModel>(registry, block("features", "identity"), args));
+  // 4. Dataset: a real one from disk, or the built-in synthetic scene.
+  const YAML::Node d = resolved.section("dataset");
+  Dataset dataset;
+  try {
+    const std::string path = get<std::string>(d, "path", "");
+    const std::string format = get<std::string>(d, "format", "auto");
+    if (format == "synthetic" || path.empty()) {
+      SyntheticSceneOptions so;
+      so.width = get(d, "synthetic_width", so.width);
+      so.height = get(d, "synthetic_height", so.height);
+      so.views = get(d, "synthetic_views", so.views);
+      so.sfm_points = get(d, "synthetic_points", so.sfm_points);
+      so.seed = get<uint64_t>(d, "synthetic_seed", so.seed);
+      so.test_every = get(d, "test_every", so.test_every);
+      so.background = model_options.effects.background;
+      CRPGS_ASSIGN_OR_RETURN(dataset, generate_scene(so, *rasterizer));
+    } else {
+      DatasetOptions o;
+      o.path = path;
+      o.format = format;
+      o.images = get<std::string>(d, "images", "");
+      o.downscale = get(d, "downscale", 1);
+      o.max_width = get(d, "max_width", 0);
+      o.test_every = get(d, "test_every", 8);
+      o.max_images = get(d, "max_images", 0);
+      o.background = model_options.effects.background;
+      o.threads = threads;
+      CRPGS_ASSIGN_OR_RETURN(dataset, load_dataset(o));
+    }
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidConfig, std::string("dataset config: ") + e.what());
+  }
+  // 5. Model and trainer.
+  CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> trainer,
+                         make_trainer(train_options, model_options, std::move(dataset),
+                                      std::move(rasterizer), std::move(features)));
+  // 6. Resume from the last checkpoint when asked and present.
+  if (setup.resume) {
+    const std::string path = trainer->checkpoint_path();
+    if (path.empty())
+      return Status(StatusCode::kInvalidArgument, "resume needs an output directory");
+    if (std::filesystem::exists(path)) CRPGS_RETURN_IF_ERROR(trainer->load_checkpoint(path));
+  }
+  return trainer;
+}
+
+}  // namespace crpgs
