@@ -1,4 +1,5 @@
-#Sources of sdk / src / train(paths relative to sdk /).
-list(APPEND CRPGS_BASE_SOURCES src / train / sections.cpp)
-    list(APPEND CRPGS_TORCH_SOURCES src / train / trainer.cpp #loop, checkpoints, evaluation,
-         setup from a config src / train / scene_generator.cpp) #the embedded synthetic scene
+# Sources of sdk/src/train (paths relative to sdk/).
+list(APPEND CRPGS_BASE_SOURCES src/train/sections.cpp)
+list(APPEND CRPGS_TORCH_SOURCES
+  src/train/trainer.cpp            # loop, checkpoints, evaluation, setup from a config
+  src/train/scene_generator.cpp)   # the embedded synthetic scene
