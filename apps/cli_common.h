@@ -36,5 +36,6 @@ int report_error(const Status& st);
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);
 void add_config_commands(CLI::App& app, GlobalOptions& g);
+void add_train_commands(CLI::App& app, GlobalOptions& g);
 
 }  // namespace crpgs::cli

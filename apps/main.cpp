@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
                  "(repeatable)");
   add_plugin_commands(app, g);
   add_config_commands(app, g);
+  add_train_commands(app, g);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -30,3 +30,9 @@ endforeach()
 # A file that is not even a shared library.
 file(MAKE_DIRECTORY ${_broken_dir})
 file(WRITE ${_broken_dir}/libcrpgs_test_garbage.so "this is not an ELF file\n")
+
+# The SDK as a third party sees it: install, build examples/ against the installed package,
+# load its plugins with the installed crpgs. Needs every target built (ctest runs after the build).
+add_test(NAME abi.out_of_tree_example_plugins
+  COMMAND ${CMAKE_CURRENT_SOURCE_DIR}/abi/out_of_tree.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+set_tests_properties(abi.out_of_tree_example_plugins PROPERTIES TIMEOUT 600)

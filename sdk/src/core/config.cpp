@@ -154,6 +154,12 @@ StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
       }
     }
     const ComponentInfo* info = registry.find(s.kind, type);
+    if (!info && s.kind == CRPGS_KIND_RASTERIZER && type == "cuda") {
+      return err(block["type"], std::string(s.key) +
+                                    ".type: rasterizer 'cuda' is not compiled into this build "
+                                    "(configure with CRPGS_WITH_CUDA=ON and a CUDA libtorch); "
+                                    "available: " + join(registry.types(s.kind)));
+    }
     if (!info) {
       std::string where = join(registry.searched_dirs());
       return err(block.IsDefined() && block["type"] ? block["type"] : block,
