@@ -1,1 +1,2 @@
 # Test sources of tests/raster (paths relative to tests/).
+list(APPEND CRPGS_TORCH_TEST_SOURCES raster/test_raster.cpp)

@@ -1,0 +1,742 @@
+// The CPU rasterizer stages: raw-pointer loops over float32 buffers, parallel over Gaussians or
+// tiles. Every per-Gaussian or per-tile result is computed by the same code whatever the thread
+// count and reduced in a fixed order, so outputs are bitwise identical for any thread count.
+#include "raster/stages.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <thread>
+#include <vector>
+
+#include <Eigen/Dense>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+namespace crpgs::raster {
+namespace {
+
+using Mat3 = Eigen::Matrix3d;
+using Mat2 = Eigen::Matrix2d;
+using Mat23 = Eigen::Matrix<double, 2, 3>;
+using Vec3 = Eigen::Vector3d;
+
+// Runs f(i) for i in [0, n); dynamic scheduling only changes who computes an item, not how.
+template <typename F>
+void parallel_items(int64_t n, int threads, const F& f) {
+#ifdef _OPENMP
+  if (threads > 1 && n > 1) {
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+    for (int64_t i = 0; i < n; ++i) f(i);
+    return;
+  }
+#endif
+  for (int64_t i = 0; i < n; ++i) f(i);
+}
+
+// Runs f(begin, end) over chunks of a range of Gaussians.
+template <typename F>
+void parallel_chunks(int64_t n, int threads, const F& f) {
+  constexpr int64_t kChunk = 2048;
+  const int64_t chunks = (n + kChunk - 1) / kChunk;
+  parallel_items(chunks, threads, [&](int64_t c) { f(c * kChunk, std::min(n, (c + 1) * kChunk)); });
+}
+
+void check_float(const at::Tensor& t, const char* name, int64_t cols) {
+  TORCH_CHECK(t.defined(), "rasterizer: ", name, " is undefined");
+  TORCH_CHECK(t.device().is_cpu(), "rasterizer: ", name, " must be on the CPU");
+  TORCH_CHECK(t.scalar_type() == at::kFloat, "rasterizer: ", name, " must be float32");
+  TORCH_CHECK(t.is_contiguous(), "rasterizer: ", name, " must be contiguous");
+  if (cols > 0) {
+    TORCH_CHECK(t.dim() == 2 && t.size(1) == cols, "rasterizer: ", name, " must be [N, ", cols,
+                "], got ", t.sizes());
+  } else {
+    TORCH_CHECK(t.dim() == 1, "rasterizer: ", name, " must be [N], got ", t.sizes());
+  }
+}
+
+// Camera constants in double; the tan limits clamp x/z for the Jacobian as 3DGS and gsplat do.
+struct CamD {
+  double fx, fy, cx, cy, near_plane, far_plane;
+  double lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;
+  int width, height, tiles_x, tiles_y;
+  Mat3 R;
+  Vec3 t;
+};
+
+CamD make_cam(const Camera& c, const RenderSettings& s) {
+  TORCH_CHECK(c.width > 0 && c.height > 0 && c.fx > 0 && c.fy > 0,
+              "rasterizer: camera needs positive size and focal lengths");
+  CamD d;
+  d.fx = c.fx;
+  d.fy = c.fy;
+  d.cx = c.cx;
+  d.cy = c.cy;
+  d.near_plane = s.near_plane;
+  d.far_plane = s.far_plane;
+  const double tan_x = 0.5 * c.width / c.fx, tan_y = 0.5 * c.height / c.fy;
+  d.lim_x_pos = (c.width - c.cx) / c.fx + 0.3 * tan_x;
+  d.lim_x_neg = c.cx / c.fx + 0.3 * tan_x;
+  d.lim_y_pos = (c.height - c.cy) / c.fy + 0.3 * tan_y;
+  d.lim_y_neg = c.cy / c.fy + 0.3 * tan_y;
+  d.width = c.width;
+  d.height = c.height;
+  d.tiles_x = (c.width + kTileSize - 1) / kTileSize;
+  d.tiles_y = (c.height + kTileSize - 1) / kTileSize;
+  d.R = c.R;
+  d.t = c.t;
+  return d;
+}
+
+Mat3 quat_to_rot(double w, double x, double y, double z) {
+  Mat3 r;
+  r << 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),  //
+      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),   //
+      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y);
+  return r;
+}
+
+// Everything the projection of one Gaussian computes, kept for its backward.
+struct ProjState {
+  Vec3 p;             // camera-space mean
+  double qn[4];       // normalised quaternion
+  double qnorm;       // |q| before normalisation
+  Mat3 Rq, M, Sigma;  // rotation, Rq * diag(s), 3D covariance
+  Mat23 J, T;         // Jacobian and J * R
+  double tx, ty;      // clamped x, y used in J
+  bool clamp_x, clamp_y;
+  Mat2 cov;  // dilated 2D covariance
+  double det;
+};
+
+// Returns false when culled by depth or a non-positive-definite covariance.
+bool project_one(const CamD& cam, const float* m, const float* s, const float* q, ProjState& st) {
+  st.p = cam.R * Vec3(m[0], m[1], m[2]) + cam.t;
+  const double z = st.p.z();
+  if (!(z >= cam.near_plane && z <= cam.far_plane)) return false;
+  const double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+  st.qnorm = std::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
+  const double inv = 1.0 / std::max(st.qnorm, kQuatEps);
+  st.qn[0] = qw * inv;
+  st.qn[1] = qx * inv;
+  st.qn[2] = qy * inv;
+  st.qn[3] = qz * inv;
+  st.Rq = quat_to_rot(st.qn[0], st.qn[1], st.qn[2], st.qn[3]);
+  st.M = st.Rq * Vec3(s[0], s[1], s[2]).asDiagonal();
+  st.Sigma = st.M * st.M.transpose();
+  const double xz = st.p.x() / z, yz = st.p.y() / z;
+  st.clamp_x = !(xz >= -cam.lim_x_neg && xz <= cam.lim_x_pos);
+  st.clamp_y = !(yz >= -cam.lim_y_neg && yz <= cam.lim_y_pos);
+  st.tx = z * std::min(cam.lim_x_pos, std::max(-cam.lim_x_neg, xz));
+  st.ty = z * std::min(cam.lim_y_pos, std::max(-cam.lim_y_neg, yz));
+  st.J << cam.fx / z, 0, -cam.fx * st.tx / (z * z), 0, cam.fy / z, -cam.fy * st.ty / (z * z);
+  st.T = st.J * cam.R;
+  st.cov = st.T * st.Sigma * st.T.transpose();
+  st.cov(0, 0) += kCovDilation;
+  st.cov(1, 1) += kCovDilation;
+  st.det = st.cov(0, 0) * st.cov(1, 1) - st.cov(0, 1) * st.cov(1, 0);
+  return std::isfinite(st.det) && st.det > 0;
+}
+
+// Cephes-style exp for x <= 0 (about 2 ulp), written so that the pixel loops vectorise.
+inline float fast_exp(float x) {
+  x = x < -87.f ? -87.f : x;
+  const float kf = (x * 1.44269504088896341f + 12582912.f) - 12582912.f;  // round to nearest
+  const float r = x - kf * 0.693359375f - kf * -2.12194440e-4f;
+  float p = 1.9875691500e-4f;
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  p = p * r * r + r + 1.f;
+  const int bits = (static_cast<int>(kf) + 127) << 23;
+  return p * __builtin_bit_cast(float, bits);
+}
+
+// What the pixel loops read of one Gaussian: one cache line.
+struct alignas(64) Packed {
+  float mx, my, a, b, c, op, r, g, bl, d;
+  float ex, ey;  // half-extent of the region where alpha can reach 1/255; ex < 0: never does
+  float pad[4];
+};
+
+Packed pack_one(const float* m2, const float* con, float op, const float* col, float depth) {
+  Packed p{};
+  p.mx = m2[0];
+  p.my = m2[1];
+  p.a = con[0];
+  p.b = con[1];
+  p.c = con[2];
+  p.op = op;
+  p.r = col[0];
+  p.g = col[1];
+  p.bl = col[2];
+  p.d = depth;
+  // alpha >= 1/255 needs q = d^T K d <= Q = 2 ln(255 op); the ellipse's x half-extent is
+  // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
+  const double Q = 2.0 * std::log(255.0 * double(op));
+  const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
+  if (!(Q > 0) || !(det > 0)) {
+    p.ex = p.ey = -1.f;
+  } else {
+    p.ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
+    p.ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);
+  }
+  return p;
+}
+
+std::vector<Packed> pack_all(const at::Tensor& means2d, const at::Tensor& conics,
+                             const at::Tensor& opacities, const at::Tensor& colors,
+                             const at::Tensor& depths, const at::Tensor& radii, int threads) {
+  const int64_t n = means2d.size(0);
+  std::vector<Packed> out(static_cast<size_t>(n));
+  const float* m2 = means2d.data_ptr<float>();
+  const float* con = conics.data_ptr<float>();
+  const float* op = opacities.data_ptr<float>();
+  const float* col = colors.data_ptr<float>();
+  const float* dep = depths.data_ptr<float>();
+  const int32_t* rad = radii.data_ptr<int32_t>();
+  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      if (rad[i] <= 0) continue;  // never in a tile list
+      out[i] = pack_one(m2 + 2 * i, con + 3 * i, op[i], col + 3 * i, dep[i]);
+    }
+  });
+  return out;
+}
+
+// Pixels [x0, x1] x [y0, y1] of the tile that the Gaussian can reach; false when none.
+inline bool pixel_range(const Packed& g, int tx0, int ty0, int tw, int th, int& x0, int& x1,
+                        int& y0, int& y1) {
+  if (g.ex < 0) return false;
+  // Pixel x has its centre at x + 0.5 and is inside when |x + 0.5 - mx| <= ex.
+  const float fx0 = std::ceil(g.mx - g.ex - 0.5f), fx1 = std::floor(g.mx + g.ex - 0.5f);
+  const float fy0 = std::ceil(g.my - g.ey - 0.5f), fy1 = std::floor(g.my + g.ey - 0.5f);
+  const float lo_x = float(tx0), hi_x = float(tx0 + tw - 1);
+  const float lo_y = float(ty0), hi_y = float(ty0 + th - 1);
+  if (!(fx1 >= lo_x && fx0 <= hi_x && fy1 >= lo_y && fy0 <= hi_y)) return false;
+  x0 = int(std::max(fx0, lo_x));
+  x1 = int(std::min(fx1, hi_x));
+  y0 = int(std::max(fy0, lo_y));
+  y1 = int(std::min(fy1, hi_y));
+  return true;
+}
+
+constexpr int kTilePixels = kTileSize * kTileSize;
+
+struct TileGeom {
+  int x0, y0, w, h;
+};
+
+inline TileGeom tile_geom(int tile, int tiles_x, int width, int height) {
+  const int tx = tile % tiles_x, ty = tile / tiles_x;
+  TileGeom g;
+  g.x0 = tx * kTileSize;
+  g.y0 = ty * kTileSize;
+  g.w = std::min(kTileSize, width - g.x0);
+  g.h = std::min(kTileSize, height - g.y0);
+  return g;
+}
+
+template <bool kDepth>
+void forward_tile(int tile, const Packed* gs, const int32_t* offsets, const int32_t* ids,
+                  int tiles_x, int width, int height, const std::array<float, 3>& bg, float* image,
+                  float* alpha_out, float* depth_out, float* final_T, int32_t* last_out) {
+  const TileGeom tg = tile_geom(tile, tiles_x, width, height);
+  alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels];
+  alignas(64) float cd[kTilePixels];
+  alignas(64) int32_t last[kTilePixels], done[kTilePixels];
+  for (int p = 0; p < kTilePixels; ++p) {
+    T[p] = 1.f;
+    cr[p] = cg[p] = cb[p] = cd[p] = 0.f;
+    last[p] = 0;
+    // Padding pixels of a partial tile count as finished.
+    done[p] = (p % kTileSize < tg.w && p / kTileSize < tg.h) ? 0 : 1;
+  }
+  int n_done = kTilePixels - tg.w * tg.h;
+  const int start = offsets[tile], count = offsets[tile + 1] - start;
+  for (int k = 0; k < count && n_done < kTilePixels; ++k) {
+    const Packed& g = gs[ids[start + k]];
+    int xa, xb, ya, yb;
+    if (!pixel_range(g, tg.x0, tg.y0, tg.w, tg.h, xa, xb, ya, yb)) continue;
+    const float mx = g.mx, a = g.a, b = g.b, c = g.c, op = g.op;
+    const float r = g.r, gg = g.g, bl = g.bl, d = g.d;
+    const int32_t kk = k + 1;
+    int stops = 0;
+    for (int y = ya; y <= yb; ++y) {
+      const float dy = g.my - (float(y) + 0.5f);
+      const int row = (y - tg.y0) * kTileSize - tg.x0;
+      for (int x = xa; x <= xb; ++x) {
+        const int p = row + x;
+        const float dx = mx - (float(x) + 0.5f);
+        float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
+        power = power > 0.f ? 0.f : power;
+        const float vis = op * fast_exp(power);
+        const float al = vis < kMaxAlpha ? vis : kMaxAlpha;
+        const bool ok = done[p] == 0 && al >= kMinAlpha;
+        const float t = T[p];
+        const float nt = t * (1.f - al);
+        const bool stop = ok && nt <= kMinTransmittance;
+        const bool acc = ok && !stop;
+        const float w = acc ? al * t : 0.f;
+        cr[p] += w * r;
+        cg[p] += w * gg;
+        cb[p] += w * bl;
+        if (kDepth) cd[p] += w * d;
+        T[p] = acc ? nt : t;
+        last[p] = acc ? kk : last[p];
+        done[p] = stop ? 1 : done[p];
+        stops += stop ? 1 : 0;
+      }
+    }
+    n_done += stops;
+  }
+  for (int py = 0; py < tg.h; ++py) {
+    for (int px = 0; px < tg.w; ++px) {
+      const int p = py * kTileSize + px;
+      const int64_t pix = int64_t(tg.y0 + py) * width + (tg.x0 + px);
+      image[3 * pix + 0] = cr[p] + T[p] * bg[0];
+      image[3 * pix + 1] = cg[p] + T[p] * bg[1];
+      image[3 * pix + 2] = cb[p] + T[p] * bg[2];
+      alpha_out[pix] = 1.f - T[p];
+      if (kDepth) depth_out[pix] = cd[p];
+      final_T[pix] = T[p];
+      last_out[pix] = last[p];
+    }
+  }
+}
+
+// Per-entry gradient slots: mean2d (2), conic (3), opacity, colour (3), depth.
+constexpr int kGradSlots = 10;
+
+template <bool kDepth>
+void backward_tile(int tile, const Packed* gs, const int32_t* offsets, const int32_t* ids,
+                   int tiles_x, int width, int height, const std::array<float, 3>& bg,
+                   const float* final_T, const int32_t* last_in, const float* v_image,
+                   const float* v_alpha, const float* v_depth, float* entry_grads) {
+  const TileGeom tg = tile_geom(tile, tiles_x, width, height);
+  alignas(64) float T[kTilePixels], Rr[kTilePixels], Rg[kTilePixels], Rb[kTilePixels];
+  alignas(64) float Rd[kTilePixels], gr[kTilePixels], gg[kTilePixels], gb[kTilePixels];
+  alignas(64) float gd[kTilePixels], tf[kTilePixels];
+  alignas(64) int32_t last[kTilePixels];
+  int kmax = 0;
+  for (int p = 0; p < kTilePixels; ++p) {
+    const int px = p % kTileSize, py = p / kTileSize;
+    T[p] = 1.f;
+    Rr[p] = Rg[p] = Rb[p] = Rd[p] = 0.f;
+    gr[p] = gg[p] = gb[p] = gd[p] = tf[p] = 0.f;
+    last[p] = 0;
+    if (px >= tg.w || py >= tg.h) continue;
+    const int64_t pix = int64_t(tg.y0 + py) * width + (tg.x0 + px);
+    T[p] = final_T[pix];
+    last[p] = last_in[pix];
+    kmax = std::max(kmax, last[p]);
+    if (v_image) {
+      gr[p] = v_image[3 * pix];
+      gg[p] = v_image[3 * pix + 1];
+      gb[p] = v_image[3 * pix + 2];
+    }
+    if (kDepth && v_depth) gd[p] = v_depth[pix];
+    // d(bg term + alpha output)/d alpha_i = T_final * (v_alpha - bg . v_image) / (1 - alpha_i).
+    const float va = v_alpha ? v_alpha[pix] : 0.f;
+    tf[p] = T[p] * (va - (bg[0] * gr[p] + bg[1] * gg[p] + bg[2] * gb[p]));
+  }
+  const int start = offsets[tile];
+  for (int k = kmax - 1; k >= 0; --k) {
+    const Packed& g = gs[ids[start + k]];
+    int xa, xb, ya, yb;
+    if (!pixel_range(g, tg.x0, tg.y0, tg.w, tg.h, xa, xb, ya, yb)) continue;
+    const float mx = g.mx, a = g.a, b = g.b, c = g.c, op = g.op;
+    const float r = g.r, gc = g.g, bl = g.bl, d = g.d;
+    // Per-column partial sums, reduced in a fixed order below (vectorisable, deterministic).
+    alignas(64) float acc[kGradSlots][kTileSize] = {};
+    for (int y = ya; y <= yb; ++y) {
+      const float dy = g.my - (float(y) + 0.5f);
+      const int row = (y - tg.y0) * kTileSize - tg.x0;
+      for (int x = xa; x <= xb; ++x) {
+        const int p = row + x, col = x - tg.x0;
+        const float dx = mx - (float(x) + 0.5f);
+        float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
+        const bool pos = power > 0.f;
+        power = pos ? 0.f : power;
+        const float G = fast_exp(power);
+        const float vis = op * G;
+        const float al = vis < kMaxAlpha ? vis : kMaxAlpha;
+        const bool ok = k < last[p] && al >= kMinAlpha;
+        const float oma = 1.f - al;
+        const float ti = T[p] / oma;
+        const float w = ok ? al * ti : 0.f;
+        float v_al =
+            ti * ((r - Rr[p]) * gr[p] + (gc - Rg[p]) * gg[p] + (bl - Rb[p]) * gb[p]) + tf[p] / oma;
+        if (kDepth) v_al += ti * (d - Rd[p]) * gd[p];
+        v_al = ok ? v_al : 0.f;
+        acc[6][col] += w * gr[p];
+        acc[7][col] += w * gg[p];
+        acc[8][col] += w * gb[p];
+        if (kDepth) acc[9][col] += w * gd[p];
+        Rr[p] = ok ? al * r + oma * Rr[p] : Rr[p];
+        Rg[p] = ok ? al * gc + oma * Rg[p] : Rg[p];
+        Rb[p] = ok ? al * bl + oma * Rb[p] : Rb[p];
+        if (kDepth) Rd[p] = ok ? al * d + oma * Rd[p] : Rd[p];
+        T[p] = ok ? ti : T[p];
+        const bool unclamped = vis <= kMaxAlpha;
+        acc[5][col] += unclamped ? G * v_al : 0.f;
+        const float v_pow = (unclamped && !pos) ? G * op * v_al : 0.f;
+        acc[0][col] += v_pow * -(a * dx + b * dy);
+        acc[1][col] += v_pow * -(b * dx + c * dy);
+        acc[2][col] += v_pow * (-0.5f * dx * dx);
+        acc[3][col] += v_pow * (-dx * dy);
+        acc[4][col] += v_pow * (-0.5f * dy * dy);
+      }
+    }
+    float* out = entry_grads + int64_t(start + k) * kGradSlots;
+    for (int s = 0; s < kGradSlots; ++s) {
+      float sum = 0.f;
+      for (int col = 0; col < kTileSize; ++col) sum += acc[s][col];
+      out[s] = sum;
+    }
+  }
+}
+
+}  // namespace
+
+int resolve_threads(int requested) {
+  if (requested > 0) return requested;
+#ifdef _OPENMP
+  return std::max(1, omp_get_num_procs());
+#else
+  return std::max(1u, std::thread::hardware_concurrency());
+#endif
+}
+
+TileRect tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y) {
+  auto clampd = [](double v, int hi) { return int(std::min<double>(hi, std::max(0.0, v))); };
+  const double r = radius;
+  TileRect t;
+  t.x0 = clampd(std::floor((mx - r) / kTileSize), tiles_x);
+  t.y0 = clampd(std::floor((my - r) / kTileSize), tiles_y);
+  t.x1 = clampd(std::floor((mx + r + kTileSize - 1) / kTileSize), tiles_x);
+  t.y1 = clampd(std::floor((my + r + kTileSize - 1) / kTileSize), tiles_y);
+  return t;
+}
+
+ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
+                              const at::Tensor& rotations, const Camera& camera,
+                              const RenderSettings& settings, int threads) {
+  check_float(means, "means", 3);
+  check_float(scales, "scales", 3);
+  check_float(rotations, "rotations", 4);
+  const int64_t n = means.size(0);
+  TORCH_CHECK(scales.size(0) == n && rotations.size(0) == n,
+              "rasterizer: means, scales and rotations must have the same N");
+  const CamD cam = make_cam(camera, settings);
+  const auto fopt = means.options();
+  ProjectResult out;
+  out.means2d = at::zeros({n, 2}, fopt);
+  out.conics = at::zeros({n, 3}, fopt);
+  out.depths = at::zeros({n}, fopt);
+  out.radii = at::zeros({n}, fopt.dtype(at::kInt));
+  const float* m = means.data_ptr<float>();
+  const float* s = scales.data_ptr<float>();
+  const float* q = rotations.data_ptr<float>();
+  float* m2 = out.means2d.data_ptr<float>();
+  float* con = out.conics.data_ptr<float>();
+  float* dep = out.depths.data_ptr<float>();
+  int32_t* rad = out.radii.data_ptr<int32_t>();
+  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
+    ProjState st;
+    for (int64_t i = b; i < e; ++i) {
+      if (!project_one(cam, m + 3 * i, s + 3 * i, q + 4 * i, st)) continue;
+      const double z = st.p.z();
+      const double mid = 0.5 * (st.cov(0, 0) + st.cov(1, 1));
+      const double lambda = mid + std::sqrt(std::max(0.0, mid * mid - st.det));
+      const double radius = std::min(kMaxRadius, std::ceil(3.0 * std::sqrt(lambda)));
+      const float u = float(cam.fx * st.p.x() / z + cam.cx);
+      const float v = float(cam.fy * st.p.y() / z + cam.cy);
+      if (!(radius > 0) || !std::isfinite(u) || !std::isfinite(v)) continue;
+      const TileRect tr = tile_rect(u, v, int(radius), cam.tiles_x, cam.tiles_y);
+      if (tr.x1 <= tr.x0 || tr.y1 <= tr.y0) continue;
+      m2[2 * i] = u;
+      m2[2 * i + 1] = v;
+      con[3 * i] = float(st.cov(1, 1) / st.det);
+      con[3 * i + 1] = float(-st.cov(0, 1) / st.det);
+      con[3 * i + 2] = float(st.cov(0, 0) / st.det);
+      dep[i] = float(z);
+      rad[i] = int32_t(radius);
+    }
+  });
+  return out;
+}
+
+ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
+                              const at::Tensor& rotations, const Camera& camera,
+                              const ProjectResult& fwd, const at::Tensor& v_means2d,
+                              const at::Tensor& v_conics, const at::Tensor& v_depths, int threads) {
+  const int64_t n = means.size(0);
+  check_float(v_means2d, "v_means2d", 2);
+  check_float(v_conics, "v_conics", 3);
+  check_float(v_depths, "v_depths", 0);
+  RenderSettings s;  // culling is read from fwd.radii; near/far are not needed here
+  s.near_plane = -std::numeric_limits<float>::infinity();
+  s.far_plane = std::numeric_limits<float>::infinity();
+  const CamD cam = make_cam(camera, s);
+  ProjectGrads g;
+  g.v_means = at::zeros({n, 3}, means.options());
+  g.v_scales = at::zeros({n, 3}, means.options());
+  g.v_rotations = at::zeros({n, 4}, means.options());
+  const float* m = means.data_ptr<float>();
+  const float* sc = scales.data_ptr<float>();
+  const float* q = rotations.data_ptr<float>();
+  const int32_t* rad = fwd.radii.data_ptr<int32_t>();
+  const float* vm2 = v_means2d.data_ptr<float>();
+  const float* vcon = v_conics.data_ptr<float>();
+  const float* vdep = v_depths.data_ptr<float>();
+  float* om = g.v_means.data_ptr<float>();
+  float* os = g.v_scales.data_ptr<float>();
+  float* oq = g.v_rotations.data_ptr<float>();
+  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
+    ProjState st;
+    for (int64_t i = b; i < e; ++i) {
+      if (rad[i] <= 0) continue;
+      if (!project_one(cam, m + 3 * i, sc + 3 * i, q + 4 * i, st)) continue;
+      const double x = st.p.x(), y = st.p.y(), z = st.p.z();
+      Vec3 v_p = Vec3::Zero();
+      // Screen-space mean and depth.
+      const double vu = vm2[2 * i], vv = vm2[2 * i + 1];
+      v_p.x() += cam.fx / z * vu;
+      v_p.y() += cam.fy / z * vv;
+      v_p.z() += -cam.fx * x / (z * z) * vu - cam.fy * y / (z * z) * vv + vdep[i];
+      // Conic = cov^-1: v_cov = -K G K with G the symmetric gradient of (a, b, c).
+      Mat2 K;
+      K << st.cov(1, 1), -st.cov(0, 1), -st.cov(1, 0), st.cov(0, 0);
+      K /= st.det;
+      Mat2 G;
+      G << vcon[3 * i], 0.5 * vcon[3 * i + 1], 0.5 * vcon[3 * i + 1], vcon[3 * i + 2];
+      const Mat2 v_cov = -K * G * K;
+      // cov = T Sigma T^T (+ dilation), T = J R.
+      const Mat23 v_T = 2.0 * v_cov * st.T * st.Sigma;
+      const Mat3 v_Sigma = st.T.transpose() * v_cov * st.T;
+      const Mat23 v_J = v_T * cam.R.transpose();
+      // J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]].
+      const double z2 = z * z, z3 = z2 * z;
+      v_p.z() += -cam.fx / z2 * v_J(0, 0) - cam.fy / z2 * v_J(1, 1) +
+                 2 * cam.fx * st.tx / z3 * v_J(0, 2) + 2 * cam.fy * st.ty / z3 * v_J(1, 2);
+      const double v_tx = -cam.fx / z2 * v_J(0, 2), v_ty = -cam.fy / z2 * v_J(1, 2);
+      if (st.clamp_x) {
+        v_p.z() += st.tx / z * v_tx;  // tx = z * limit
+      } else {
+        v_p.x() += v_tx;
+      }
+      if (st.clamp_y) {
+        v_p.z() += st.ty / z * v_ty;
+      } else {
+        v_p.y() += v_ty;
+      }
+      const Vec3 v_m = cam.R.transpose() * v_p;
+      // Sigma = M M^T, M = Rq diag(s).
+      const Mat3 v_M = 2.0 * v_Sigma * st.M;
+      for (int k = 0; k < 3; ++k) {
+        om[3 * i + k] = float(v_m[k]);
+        os[3 * i + k] = float(st.Rq.col(k).dot(v_M.col(k)));
+      }
+      const Mat3 Gr = v_M * Vec3(sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]).asDiagonal();
+      const double w = st.qn[0], qx = st.qn[1], qy = st.qn[2], qz = st.qn[3];
+      double vq[4];
+      vq[0] = 2 * (-qz * Gr(0, 1) + qy * Gr(0, 2) + qz * Gr(1, 0) - qx * Gr(1, 2) - qy * Gr(2, 0) +
+                   qx * Gr(2, 1));
+      vq[1] = 2 * (qy * Gr(0, 1) + qz * Gr(0, 2) + qy * Gr(1, 0) - 2 * qx * Gr(1, 1) -
+                   w * Gr(1, 2) + qz * Gr(2, 0) + w * Gr(2, 1) - 2 * qx * Gr(2, 2));
+      vq[2] = 2 * (-2 * qy * Gr(0, 0) + qx * Gr(0, 1) + w * Gr(0, 2) + qx * Gr(1, 0) +
+                   qz * Gr(1, 2) - w * Gr(2, 0) + qz * Gr(2, 1) - 2 * qy * Gr(2, 2));
+      vq[3] = 2 * (-2 * qz * Gr(0, 0) - w * Gr(0, 1) + qx * Gr(0, 2) + w * Gr(1, 0) -
+                   2 * qz * Gr(1, 1) + qy * Gr(1, 2) + qx * Gr(2, 0) + qy * Gr(2, 1));
+      // qn = q / max(|q|, eps): project out the radial part when the norm is not clamped.
+      if (st.qnorm > kQuatEps) {
+        const double dot =
+            st.qn[0] * vq[0] + st.qn[1] * vq[1] + st.qn[2] * vq[2] + st.qn[3] * vq[3];
+        for (int k = 0; k < 4; ++k) oq[4 * i + k] = float((vq[k] - st.qn[k] * dot) / st.qnorm);
+      } else {
+        for (int k = 0; k < 4; ++k) oq[4 * i + k] = float(vq[k] / kQuatEps);
+      }
+    }
+  });
+  return g;
+}
+
+TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& radii,
+                                  const at::Tensor& depths, int width, int height, int threads) {
+  check_float(means2d, "means2d", 2);
+  check_float(depths, "depths", 0);
+  TORCH_CHECK(radii.scalar_type() == at::kInt && radii.is_contiguous(),
+              "rasterizer: radii must be contiguous int32");
+  const int64_t n = means2d.size(0);
+  TileIntersections out;
+  out.tiles_x = (width + kTileSize - 1) / kTileSize;
+  out.tiles_y = (height + kTileSize - 1) / kTileSize;
+  const int n_tiles = out.tiles_x * out.tiles_y;
+  const float* m2 = means2d.data_ptr<float>();
+  const int32_t* rad = radii.data_ptr<int32_t>();
+  const float* dep = depths.data_ptr<float>();
+  // Rects once, counts per tile, then a fill in Gaussian order (serial: cheap, deterministic).
+  std::vector<TileRect> rects(static_cast<size_t>(n));
+  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      rects[i] = rad[i] > 0 ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
+                            : TileRect{0, 0, 0, 0};
+    }
+  });
+  std::vector<int64_t> counts(static_cast<size_t>(n_tiles) + 1, 0);
+  for (int64_t i = 0; i < n; ++i) {
+    const TileRect& r = rects[i];
+    for (int ty = r.y0; ty < r.y1; ++ty)
+      for (int tx = r.x0; tx < r.x1; ++tx) ++counts[ty * out.tiles_x + tx + 1];
+  }
+  for (int t = 0; t < n_tiles; ++t) counts[t + 1] += counts[t];
+  const int64_t total = counts[n_tiles];
+  TORCH_CHECK(total <= std::numeric_limits<int32_t>::max(),
+              "rasterizer: too many tile intersections (", total, ")");
+  out.tile_offsets = at::empty({n_tiles + 1}, radii.options());
+  int32_t* off = out.tile_offsets.data_ptr<int32_t>();
+  for (int t = 0; t <= n_tiles; ++t) off[t] = int32_t(counts[t]);
+  out.gaussian_ids = at::empty({total}, radii.options());
+  int32_t* ids = out.gaussian_ids.data_ptr<int32_t>();
+  std::vector<int64_t> cursor(counts.begin(), counts.end() - 1);
+  for (int64_t i = 0; i < n; ++i) {
+    const TileRect& r = rects[i];
+    for (int ty = r.y0; ty < r.y1; ++ty)
+      for (int tx = r.x0; tx < r.x1; ++tx) ids[cursor[ty * out.tiles_x + tx]++] = int32_t(i);
+  }
+  // Sort each tile by (depth, index): depths are positive, so their bits order as integers.
+  parallel_items(n_tiles, threads, [&](int64_t t) {
+    const int32_t b = off[t], e = off[t + 1];
+    if (e - b < 2) return;
+    std::vector<uint64_t> keys(static_cast<size_t>(e - b));
+    for (int32_t k = b; k < e; ++k) {
+      uint32_t bits;
+      std::memcpy(&bits, &dep[ids[k]], sizeof(bits));
+      keys[k - b] = (uint64_t(bits) << 32) | uint32_t(ids[k]);
+    }
+    std::sort(keys.begin(), keys.end());
+    for (int32_t k = b; k < e; ++k) ids[k] = int32_t(keys[k - b] & 0xffffffffu);
+  });
+  return out;
+}
+
+RasterizeResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics,
+                                  const at::Tensor& opacities, const at::Tensor& colors,
+                                  const at::Tensor& depths, const TileIntersections& isect,
+                                  int width, int height, const std::array<float, 3>& background,
+                                  bool render_depth, int threads) {
+  check_float(means2d, "means2d", 2);
+  check_float(conics, "conics", 3);
+  check_float(opacities, "opacities", 0);
+  check_float(colors, "colors", 3);
+  check_float(depths, "depths", 0);
+  const auto fopt = means2d.options();
+  RasterizeResult out;
+  out.image = at::empty({height, width, 3}, fopt);
+  out.alpha = at::empty({height, width, 1}, fopt);
+  if (render_depth) out.depth = at::empty({height, width, 1}, fopt);
+  out.final_T = at::empty({height, width}, fopt);
+  out.last_contrib = at::empty({height, width}, fopt.dtype(at::kInt));
+  // Radii are not needed here: only listed Gaussians are read; pass a dummy "all visible".
+  const int64_t n = means2d.size(0);
+  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths,
+                                          at::ones({n}, fopt.dtype(at::kInt)), threads);
+  const int32_t* off = isect.tile_offsets.data_ptr<int32_t>();
+  const int32_t* ids = isect.gaussian_ids.data_ptr<int32_t>();
+  float* img = out.image.data_ptr<float>();
+  float* al = out.alpha.data_ptr<float>();
+  float* dp = render_depth ? out.depth.data_ptr<float>() : nullptr;
+  float* ft = out.final_T.data_ptr<float>();
+  int32_t* lc = out.last_contrib.data_ptr<int32_t>();
+  parallel_items(int64_t(isect.tiles_x) * isect.tiles_y, threads, [&](int64_t t) {
+    if (render_depth) {
+      forward_tile<true>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background, img,
+                         al, dp, ft, lc);
+    } else {
+      forward_tile<false>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background,
+                          img, al, dp, ft, lc);
+    }
+  });
+  return out;
+}
+
+RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& conics,
+                                  const at::Tensor& opacities, const at::Tensor& colors,
+                                  const at::Tensor& depths, const TileIntersections& isect,
+                                  const RasterizeResult& fwd, int width, int height,
+                                  const std::array<float, 3>& background, bool render_depth,
+                                  const at::Tensor& v_image, const at::Tensor& v_alpha,
+                                  const at::Tensor& v_depth, int threads) {
+  const int64_t n = means2d.size(0);
+  const auto fopt = means2d.options();
+  auto ptr_or_null = [&](const at::Tensor& t, int64_t numel) -> const float* {
+    if (!t.defined()) return nullptr;
+    TORCH_CHECK(t.scalar_type() == at::kFloat && t.is_contiguous() && t.numel() == numel,
+                "rasterizer: output gradient has the wrong shape or type");
+    return t.data_ptr<float>();
+  };
+  const int64_t npix = int64_t(width) * height;
+  const float* vi = ptr_or_null(v_image, npix * 3);
+  const float* va = ptr_or_null(v_alpha, npix);
+  const float* vd = render_depth ? ptr_or_null(v_depth, npix) : nullptr;
+  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths,
+                                          at::ones({n}, fopt.dtype(at::kInt)), threads);
+  const int32_t* off = isect.tile_offsets.data_ptr<int32_t>();
+  const int32_t* ids = isect.gaussian_ids.data_ptr<int32_t>();
+  const int64_t m = isect.gaussian_ids.numel();
+  std::vector<float> entry(static_cast<size_t>(m) * kGradSlots, 0.f);
+  const float* ft = fwd.final_T.data_ptr<float>();
+  const int32_t* lc = fwd.last_contrib.data_ptr<int32_t>();
+  parallel_items(int64_t(isect.tiles_x) * isect.tiles_y, threads, [&](int64_t t) {
+    if (render_depth) {
+      backward_tile<true>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background, ft,
+                          lc, vi, va, vd, entry.data());
+    } else {
+      backward_tile<false>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background,
+                           ft, lc, vi, va, vd, entry.data());
+    }
+  });
+  RasterizeGrads g;
+  g.v_means2d = at::zeros({n, 2}, fopt);
+  g.v_conics = at::zeros({n, 3}, fopt);
+  g.v_opacities = at::zeros({n}, fopt);
+  g.v_colors = at::zeros({n, 3}, fopt);
+  g.v_depths = at::zeros({n}, fopt);
+  float* om = g.v_means2d.data_ptr<float>();
+  float* oc = g.v_conics.data_ptr<float>();
+  float* oo = g.v_opacities.data_ptr<float>();
+  float* ocol = g.v_colors.data_ptr<float>();
+  float* od = g.v_depths.data_ptr<float>();
+  // Fixed-order reduction over entries (tile-major), independent of the thread count.
+  for (int64_t k = 0; k < m; ++k) {
+    const float* e = entry.data() + k * kGradSlots;
+    const int64_t i = ids[k];
+    om[2 * i] += e[0];
+    om[2 * i + 1] += e[1];
+    oc[3 * i] += e[2];
+    oc[3 * i + 1] += e[3];
+    oc[3 * i + 2] += e[4];
+    oo[i] += e[5];
+    ocol[3 * i] += e[6];
+    ocol[3 * i + 1] += e[7];
+    ocol[3 * i + 2] += e[8];
+    od[i] += e[9];
+  }
+  return g;
+}
+
+at::Tensor visible_anchors(const at::Tensor& positions, const at::Tensor& extents,
+                           const Camera& camera, const RenderSettings& settings, int threads) {
+  const int64_t n = positions.size(0);
+  at::Tensor rot = at::zeros({n, 4}, positions.options());
+  if (n > 0) rot.select(1, 0).fill_(1.f);
+  const ProjectResult pr = project_forward(positions, extents, rot, camera, settings, threads);
+  return pr.radii.gt(0);
+}
+
+}  // namespace crpgs::raster

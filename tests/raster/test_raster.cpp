@@ -1,0 +1,430 @@
+/// @file test_raster.cpp
+/// @brief The CPU rasterizer against its float64 reference and finite differences: forward,
+/// every gradient, the numerical edge cases, thread-count determinism, the stages on their own,
+/// the anchor prefilter and the component's descriptor.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "crpgs/schema.h"
+#include "raster/raster_test_util.h"
+#include "raster/stages.h"
+
+namespace crpgs::raster {
+namespace {
+
+using namespace crpgs::raster::test_util;
+
+RenderSettings settings_with(bool depth, std::array<float, 3> bg = {0.1f, 0.3f, 0.7f}) {
+  RenderSettings s;
+  s.background = bg;
+  s.render_depth = depth;
+  return s;
+}
+
+// ---- Correctness on random scenes -------------------------------------------------------
+
+struct SceneCase {
+  int width, height, n;
+  uint32_t seed;
+  bool depth;
+  friend std::ostream& operator<<(std::ostream& os, const SceneCase& c) {
+    return os << c.width << "x" << c.height << "_n" << c.n << "_s" << c.seed
+              << (c.depth ? "_depth" : "");
+  }
+};
+
+class RandomScene : public ::testing::TestWithParam<SceneCase> {};
+
+TEST_P(RandomScene, ForwardAndGradientsMatchReference) {
+  const SceneCase c = GetParam();
+  const Camera cam = make_camera(c.width, c.height);
+  const Scene s = random_scene(c.n, c.seed, cam);
+  const RenderSettings st = settings_with(c.depth);
+  const Weights w = random_weights(c.width, c.height, c.seed + 1);
+  const RenderRun fast = run(s, cam, st, w, false);
+  const RenderRun ref = run(s, cam, st, w, true);
+  expect_finite(fast, "cpu");
+  expect_forward_close(fast, ref, "random scene");
+  expect_grads_close(fast.grads, ref.grads, 1e-3, "random scene");
+  // The scene must actually draw something and move every parameter.
+  EXPECT_GT(max_abs(ref.out.alpha), 0.5);
+  EXPECT_GT(ref.out.radii.gt(0).sum().item<int64_t>(), c.n / 3);
+  for (const at::Tensor& g : {ref.grads.means, ref.grads.scales, ref.grads.rotations,
+                              ref.grads.opacities, ref.grads.colors, ref.grads.means2d}) {
+    EXPECT_GT(max_abs(g), 1e-6);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Raster, RandomScene,
+                         ::testing::Values(SceneCase{48, 32, 40, 1, true},
+                                           SceneCase{37, 29, 60, 2, false},
+                                           SceneCase{70, 45, 120, 3, true},
+                                           SceneCase{16, 16, 25, 4, false}));
+
+// Central differences of the float64 reference's loss: checks both the reference's autograd
+// (tight) and the CPU rasterizer's analytic gradients (1e-3 of the tensor's largest entry).
+TEST(RasterGradients, MatchCentralFiniteDifferences) {
+  const Camera cam = make_camera(40, 30);
+  const Scene s = random_scene(30, 11, cam, 4.0);
+  const RenderSettings st = settings_with(true);
+  const Weights w = random_weights(cam.width, cam.height, 12);
+  const RenderRun fast = run(s, cam, st, w, false);
+  const RenderRun ref = run(s, cam, st, w, true);
+  auto loss_at = [&](const Scene& sc) {
+    GaussianBatch g;
+    g.means = sc.means.to(at::kDouble);
+    g.scales = sc.scales.to(at::kDouble);
+    g.rotations = sc.rotations.to(at::kDouble);
+    g.opacities = sc.opacities.to(at::kDouble);
+    g.colors = sc.colors.to(at::kDouble);
+    return loss_of(reference::render(g, cam, st), w, true).item<double>();
+  };
+  // Perturb float64 copies of the parameters (the scene's tensors are float32).
+  Scene sd;
+  sd.means = s.means.to(at::kDouble);
+  sd.scales = s.scales.to(at::kDouble);
+  sd.rotations = s.rotations.to(at::kDouble);
+  sd.opacities = s.opacities.to(at::kDouble);
+  sd.colors = s.colors.to(at::kDouble);
+  struct Param {
+    const char* name;
+    at::Tensor Scene::*field;
+    at::Tensor Grads::*grad;
+  };
+  const Param params[] = {{"means", &Scene::means, &Grads::means},
+                          {"scales", &Scene::scales, &Grads::scales},
+                          {"rotations", &Scene::rotations, &Grads::rotations},
+                          {"opacities", &Scene::opacities, &Grads::opacities},
+                          {"colors", &Scene::colors, &Grads::colors}};
+  const at::Tensor visible = ref.out.radii.gt(0).nonzero().flatten();
+  ASSERT_GT(visible.numel(), 10);
+  std::mt19937 rng(5);
+  int checked = 0;
+  for (const Param& p : params) {
+    const at::Tensor g_ref = (ref.grads.*p.grad).reshape({-1});
+    const at::Tensor g_fast = (fast.grads.*p.grad).reshape({-1});
+    const int64_t per = (sd.*p.field).numel() / sd.size();
+    const double scale = std::max(max_abs(g_ref), 1e-8);
+    for (int trial = 0; trial < 8; ++trial) {
+      const int64_t gi = visible[int64_t(rng() % visible.numel())].item<int64_t>();
+      const int64_t flat = gi * per + int64_t(rng() % per);
+      const double h = 1e-7;
+      Scene plus = sd, minus = sd;
+      plus.*p.field = (sd.*p.field).clone();
+      minus.*p.field = (sd.*p.field).clone();
+      (plus.*p.field).view({-1})[flat] += h;
+      (minus.*p.field).view({-1})[flat] -= h;
+      const double fd = (loss_at(plus) - loss_at(minus)) / (2 * h);
+      const double gr = g_ref[flat].item<double>(), gf = g_fast[flat].item<double>();
+      EXPECT_NEAR(gr, fd, 1e-5 * scale + 1e-6 * std::abs(fd)) << p.name << "[" << flat << "]";
+      EXPECT_NEAR(gf, fd, 1e-3 * scale) << p.name << "[" << flat << "]";
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 40);
+}
+
+TEST(RasterThreads, OneAndTwoThreadsGiveIdenticalResults) {
+  const Camera cam = make_camera(200, 150);
+  const Scene s = random_scene(3000, 21, cam, 5.0);
+  const RenderSettings st = settings_with(true);
+  const Weights w = random_weights(cam.width, cam.height, 22);
+  const RenderRun one = run(s, cam, st, w, false, 1);
+  const RenderRun two = run(s, cam, st, w, false, 2);
+  EXPECT_TRUE(at::equal(one.out.image, two.out.image));
+  EXPECT_TRUE(at::equal(one.out.alpha, two.out.alpha));
+  EXPECT_TRUE(at::equal(one.out.depth, two.out.depth));
+  EXPECT_TRUE(at::equal(one.out.radii, two.out.radii));
+  EXPECT_TRUE(at::equal(one.grads.means, two.grads.means));
+  EXPECT_TRUE(at::equal(one.grads.scales, two.grads.scales));
+  EXPECT_TRUE(at::equal(one.grads.rotations, two.grads.rotations));
+  EXPECT_TRUE(at::equal(one.grads.opacities, two.grads.opacities));
+  EXPECT_TRUE(at::equal(one.grads.colors, two.grads.colors));
+  EXPECT_TRUE(at::equal(one.grads.means2d, two.grads.means2d));
+  EXPECT_GT(max_abs(one.grads.means), 0.0);
+}
+
+// ---- Numerical edge cases (each also against the reference) ----------------------------
+
+TEST(RasterStability, BehindCameraAndStraddlingNearPlane) {
+  const Camera cam = make_camera(48, 40);
+  Scene s = random_scene(12, 31, cam);
+  // 0: behind, 1: exactly at z = 0, 2: just in front of the near plane with a huge footprint,
+  // 3: just behind the near plane, 4: in front but its 3D extent crosses z = 0.
+  const double zs[] = {-2.0, 0.0, 0.02, 0.009, 0.5};
+  const double sc[] = {0.3, 0.3, 0.05, 0.05, 2.0};
+  for (int i = 0; i < 5; ++i) {
+    const Eigen::Vector3d w = world_at_pixel(cam, 20, 15, zs[i]);
+    const Eigen::Vector3d wz = to_world(cam, Eigen::Vector3d(0.01, -0.02, zs[i]));
+    const Eigen::Vector3d p = zs[i] == 0.0 ? wz : w;
+    set_row(s.means, i, {p.x(), p.y(), p.z()});
+    set_row(s.scales, i, {sc[i], sc[i] * 0.5, sc[i]});
+  }
+  s.opacities[2] = 0.3f;
+  const Weights wt = random_weights(cam.width, cam.height, 3);
+  const RenderRun fast = run(s, cam, settings_with(true), wt, false);
+  EXPECT_EQ(fast.out.radii[0].item<int>(), 0);
+  EXPECT_EQ(fast.out.radii[1].item<int>(), 0);
+  EXPECT_GT(fast.out.radii[2].item<int>(), 0);
+  EXPECT_EQ(fast.out.radii[3].item<int>(), 0);
+  EXPECT_GT(fast.out.radii[4].item<int>(), 0);
+  EXPECT_EQ(max_abs(fast.grads.means[0]), 0.0);
+  expect_matches_reference(s, cam, settings_with(true), "near plane");
+}
+
+TEST(RasterStability, ExtremelySmallAndLargeScales) {
+  const Camera cam = make_camera(40, 36);
+  Scene s = random_scene(20, 41, cam);
+  set_row(s.scales, 0, {1e-9, 1e-9, 1e-9});
+  set_row(s.scales, 1, {1e-12, 0.05, 1e-12});
+  set_row(s.scales, 2, {50.0, 40.0, 60.0});  // covers the whole image
+  set_row(s.scales, 3, {1e4, 1e-6, 1e3});
+  s.opacities[2] = 0.2f;
+  s.opacities[3] = 0.1f;
+  expect_matches_reference(s, cam, settings_with(false), "extreme scales");
+}
+
+TEST(RasterStability, NearSingularAndDegenerate2DCovariances) {
+  const Camera cam = make_camera(40, 32);
+  Scene s = random_scene(16, 51, cam);
+  // Needles along the viewing ray and flat discs seen edge-on (identity rotation, camera R is
+  // close to identity): before the 0.3 dilation their 2D covariances are (nearly) singular.
+  set_row(s.rotations, 0, {1, 0, 0, 0});
+  set_row(s.scales, 0, {1e-7, 1e-7, 0.8});
+  set_row(s.rotations, 1, {1, 0, 0, 0});
+  set_row(s.scales, 1, {0.5, 1e-8, 0.5});
+  set_row(s.rotations, 2, {0, 0, 0, 1});
+  set_row(s.scales, 2, {0.0, 0.0, 0.0});  // a point: the dilation alone
+  set_row(s.rotations, 3, {0.7071, 0.7071, 0, 0});
+  set_row(s.scales, 3, {0.3, 1e-9, 1e-9});
+  expect_matches_reference(s, cam, settings_with(true), "degenerate covariances");
+}
+
+TEST(RasterStability, UnnormalisedAndZeroQuaternions) {
+  const Camera cam = make_camera(40, 32);
+  Scene s = random_scene(16, 61, cam, 4.0);
+  set_row(s.rotations, 0, {0, 0, 0, 0});
+  set_row(s.rotations, 1, {200.0, -150.0, 30.0, 80.0});
+  set_row(s.rotations, 2, {1e-5, 2e-5, -1e-5, 3e-6});
+  set_row(s.rotations, 3, {0, 0, 0, 3.0});
+  expect_matches_reference(s, cam, settings_with(false), "quaternions");
+  const RenderRun fast = run(s, cam, settings_with(false), random_weights(40, 32, 1), false);
+  // The zero quaternion renders as the identity and gets no rotation gradient.
+  EXPECT_GT(fast.out.radii[0].item<int>(), 0);
+  EXPECT_EQ(max_abs(fast.grads.rotations[0]), 0.0);
+}
+
+TEST(RasterStability, OpacityZeroAndNearOne) {
+  const Camera cam = make_camera(40, 32);
+  Scene s = random_scene(20, 71, cam, 4.0);
+  s.opacities[0] = 0.f;
+  s.opacities[1] = 0.9999f;
+  s.opacities[2] = 1.f;
+  s.opacities[3] = 1e-3f;  // below 1/255 everywhere
+  expect_matches_reference(s, cam, settings_with(true), "opacity");
+  const RenderRun fast = run(s, cam, settings_with(true), random_weights(40, 32, 2), false);
+  EXPECT_EQ(max_abs(fast.grads.colors[0]), 0.0);
+  EXPECT_EQ(max_abs(fast.grads.colors[3]), 0.0);
+}
+
+TEST(RasterStability, TransmittanceReachesTerminationThreshold) {
+  // Four large opaque layers over the image: alpha 0.95 each gives T = 0.05^3 = 1.25e-4 after
+  // three, and the fourth would take it below 1e-4, so every pixel stops after three.
+  const Camera cam = make_camera(32, 32);
+  Scene s = empty_scene(6);
+  for (int i = 0; i < 6; ++i) {
+    const Eigen::Vector3d p = world_at_pixel(cam, 16.3, 15.8, 2.0 + 0.5 * i);
+    set_row(s.means, i, {p.x(), p.y(), p.z()});
+    set_row(s.scales, i, {30.0, 30.0, 0.01});
+    set_row(s.colors, i, {0.2 * i, 1.0 - 0.15 * i, 0.5});
+    s.opacities[i] = 0.95f;
+  }
+  const RenderSettings st = settings_with(true);
+  expect_matches_reference(s, cam, st, "termination");
+  // Through the stages: last contributor and final transmittance at the centre.
+  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, cam, st, 1);
+  const TileIntersections is = intersect_tiles(pr.means2d, pr.radii, pr.depths, 32, 32, 1);
+  const RasterizeResult rr = rasterize_forward(pr.means2d, pr.conics, s.opacities, s.colors,
+                                               pr.depths, is, 32, 32, st.background, true, 1);
+  const int64_t tile = (15 / kTileSize) * is.tiles_x + 16 / kTileSize;
+  EXPECT_EQ(is.tile_offsets[tile + 1].item<int>() - is.tile_offsets[tile].item<int>(), 6);
+  EXPECT_EQ(rr.last_contrib[15][16].item<int>(), 3);
+  const float T = rr.final_T[15][16].item<float>();
+  EXPECT_GT(T, kMinTransmittance);
+  EXPECT_LT(T, 1.3e-4f);
+}
+
+TEST(RasterStability, GaussiansExactlyOnTileBorders) {
+  const Camera cam = make_camera(64, 48);
+  Scene s = random_scene(12, 81, cam);
+  // Means exactly on tile corners / edges in pixel coordinates.
+  const double px[][2] = {{16, 16}, {32, 16}, {48, 32}, {16, 40.5}, {0, 0}, {64, 48}};
+  for (int i = 0; i < 6; ++i) {
+    const Eigen::Vector3d p = world_at_pixel(cam, px[i][0], px[i][1], 3.0);
+    set_row(s.means, i, {p.x(), p.y(), p.z()});
+  }
+  expect_matches_reference(s, cam, settings_with(true), "tile borders");
+}
+
+TEST(RasterStability, OnePixelAndOddImageSizes) {
+  for (const auto& wh : {std::pair<int, int>{1, 1}, {17, 33}, {33, 17}, {15, 1}}) {
+    Camera cam = make_camera(wh.first, wh.second);
+    const Scene s = random_scene(20, 91, cam, 2.0);
+    expect_matches_reference(s, cam, settings_with(true),
+                             std::to_string(wh.first) + "x" + std::to_string(wh.second));
+  }
+}
+
+TEST(RasterStability, EmptySetOfGaussians) {
+  const Camera cam = make_camera(20, 12);
+  const Scene s = empty_scene(0);
+  const RenderSettings st = settings_with(true, {0.25f, 0.5f, 1.f});
+  const RenderRun fast = run(s, cam, st, random_weights(20, 12, 4), false);
+  EXPECT_EQ(fast.out.image.sizes(), (std::vector<int64_t>{12, 20, 3}));
+  EXPECT_EQ(max_abs(fast.out.image.select(2, 0) - 0.25), 0.0);
+  EXPECT_EQ(max_abs(fast.out.image.select(2, 2) - 1.0), 0.0);
+  EXPECT_EQ(max_abs(fast.out.alpha), 0.0);
+  EXPECT_EQ(max_abs(fast.out.depth), 0.0);
+  EXPECT_EQ(fast.grads.means.sizes(), (std::vector<int64_t>{0, 3}));
+  expect_finite(fast, "empty");
+}
+
+TEST(RasterStability, ThousandsOfGaussiansOnOnePixel) {
+  // 3000 faint Gaussians around the same pixel: long per-pixel lists, late termination.
+  const Camera cam = make_camera(24, 20);
+  Scene s = random_scene(3000, 101, cam, 3.0);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> U(0, 1);
+  auto o = s.opacities.accessor<float, 1>();
+  for (int64_t i = 0; i < s.size(); ++i) {
+    const Eigen::Vector3d p = world_at_pixel(cam, 11.5 + U(rng), 9.5 + U(rng), 2 + 3 * U(rng));
+    set_row(s.means, i, {p.x(), p.y(), p.z()});
+    o[i] = float(0.004 + 0.01 * U(rng));
+  }
+  expect_matches_reference(s, cam, settings_with(true), "crowded pixel");
+}
+
+// ---- Stages on their own --------------------------------------------------------------
+
+TEST(RasterStages, ProjectMatchesReference) {
+  const Camera cam = make_camera(64, 48);
+  const Scene s = random_scene(200, 111, cam);
+  const RenderSettings st = settings_with(false);
+  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, cam, st, 2);
+  const reference::Projection ref = reference::project(
+      s.means.to(at::kDouble), s.scales.to(at::kDouble), s.rotations.to(at::kDouble), cam, st);
+  EXPECT_TRUE(at::equal(pr.radii, ref.radii));
+  const at::Tensor vis = pr.radii.gt(0).unsqueeze(1).to(at::kDouble);
+  EXPECT_LE(max_abs((pr.means2d.to(at::kDouble) - ref.means2d) * vis), 1e-4);
+  EXPECT_LE(max_abs((pr.conics.to(at::kDouble) - ref.conics) * vis) / max_abs(ref.conics), 1e-6);
+  EXPECT_LE(max_abs((pr.depths.to(at::kDouble) - ref.depths) * vis.squeeze(1)), 1e-5);
+}
+
+TEST(RasterStages, IntersectListsEveryOverlapSortedByDepth) {
+  const Camera cam = make_camera(100, 70);
+  const Scene s = random_scene(300, 121, cam);
+  const ProjectResult pr =
+      project_forward(s.means, s.scales, s.rotations, cam, settings_with(false), 2);
+  const TileIntersections is = intersect_tiles(pr.means2d, pr.radii, pr.depths, 100, 70, 2);
+  ASSERT_EQ(is.tiles_x, 7);
+  ASSERT_EQ(is.tiles_y, 5);
+  auto off = is.tile_offsets.accessor<int32_t, 1>();
+  auto ids = is.gaussian_ids.accessor<int32_t, 1>();
+  auto dep = pr.depths.accessor<float, 1>();
+  auto m2 = pr.means2d.accessor<float, 2>();
+  auto rad = pr.radii.accessor<int32_t, 1>();
+  int64_t expected_total = 0;
+  for (int64_t i = 0; i < s.size(); ++i) {
+    if (rad[i] <= 0) continue;
+    const TileRect r = tile_rect(m2[i][0], m2[i][1], rad[i], is.tiles_x, is.tiles_y);
+    expected_total += int64_t(r.x1 - r.x0) * (r.y1 - r.y0);
+    for (int ty = r.y0; ty < r.y1; ++ty) {
+      for (int tx = r.x0; tx < r.x1; ++tx) {
+        const int t = ty * is.tiles_x + tx;
+        bool found = false;
+        for (int k = off[t]; k < off[t + 1]; ++k) found = found || ids[k] == i;
+        EXPECT_TRUE(found) << "gaussian " << i << " missing from tile " << t;
+      }
+    }
+  }
+  EXPECT_EQ(is.gaussian_ids.numel(), expected_total);
+  for (int t = 0; t < is.tiles_x * is.tiles_y; ++t) {
+    for (int k = off[t] + 1; k < off[t + 1]; ++k) {
+      const bool ordered =
+          dep[ids[k - 1]] < dep[ids[k]] || (dep[ids[k - 1]] == dep[ids[k]] && ids[k - 1] < ids[k]);
+      EXPECT_TRUE(ordered) << "tile " << t << " entry " << k;
+    }
+  }
+}
+
+// ---- Anchor prefilter and the component ------------------------------------------------
+
+TEST(RasterAnchors, VisibleAnchorsFollowFrustumAndRadius) {
+  const Camera cam = make_camera(64, 48);
+  at::Tensor pos = at::zeros({6, 3});
+  at::Tensor ext = at::full({6, 3}, 0.05f);
+  auto put = [&](int i, const Eigen::Vector3d& p) { set_row(pos, i, {p.x(), p.y(), p.z()}); };
+  put(0, world_at_pixel(cam, 32, 24, 3.0));   // centre: visible
+  put(1, to_world(cam, {0, 0, -3.0}));        // behind
+  put(2, world_at_pixel(cam, 400, 24, 3.0));  // far right of the frame
+  put(3, world_at_pixel(cam, 70, 24, 3.0));   // just outside, but its radius reaches in
+  set_row(ext, 3, {1.0, 1.0, 1.0});
+  put(4, world_at_pixel(cam, 32, 24, 150.0));  // beyond the far plane
+  put(5, world_at_pixel(cam, -3, -3, 2.0));    // corner, small but within one tile's reach
+  CpuRasterizer rast(2);
+  const at::Tensor vis = rast.visible_anchors(pos, ext, cam, RenderSettings{});
+  ASSERT_EQ(vis.scalar_type(), at::kBool);
+  const std::vector<bool> expected = {true, false, false, true, false, true};
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(vis[i].item<bool>(), expected[i]) << "anchor " << i;
+}
+
+TEST(RasterComponent, DescriptorSchemaAndHyperparams) {
+  const crpgs_plugin_descriptor* d = cpu_rasterizer_descriptor();
+  ASSERT_NE(d, nullptr);
+  EXPECT_EQ(d->kind, uint32_t(CRPGS_KIND_RASTERIZER));
+  EXPECT_STREQ(d->id, "org.crpgs.rasterizer.cpu");
+  EXPECT_STREQ(d->type_name, "cpu");
+  EXPECT_EQ(d->version_major, 1u);
+  EXPECT_EQ(d->version_minor, 0u);
+  const StatusOr<Schema> schema = Schema::parse(d->schema_yaml);
+  ASSERT_TRUE(schema.ok());
+  ASSERT_NE(schema->find("threads"), nullptr);
+  EXPECT_EQ(schema->find("threads")->type, ParamType::kInt);
+
+  crpgs_create_args args{};
+  void* obj = nullptr;
+  char err[256] = {0};
+  ASSERT_EQ(d->create("{type: cpu, threads: 2}", &args, &obj, err, sizeof(err)), CRPGS_PLUGIN_OK)
+      << err;
+  auto* r = static_cast<Rasterizer*>(obj);
+  EXPECT_EQ(r->type_name(), "cpu");
+  EXPECT_EQ(r->hyperparams()["type"].as<std::string>(), "cpu");
+  EXPECT_EQ(r->hyperparams()["threads"].as<int>(), 2);
+  EXPECT_TRUE(r->device().is_cpu());
+  d->destroy(obj);
+
+  args.device_cuda = 1;
+  EXPECT_EQ(d->create("{threads: 0}", &args, &obj, err, sizeof(err)), CRPGS_PLUGIN_ERROR);
+  EXPECT_NE(std::string(err).find("CUDA"), std::string::npos) << err;
+}
+
+TEST(RasterComponent, RejectsWrongInputs) {
+  CpuRasterizer rast;
+  const Camera cam = make_camera(16, 16);
+  GaussianBatch g;
+  const Scene s = random_scene(4, 1, cam);
+  g.means = s.means.to(at::kDouble);
+  g.scales = s.scales;
+  g.rotations = s.rotations;
+  g.opacities = s.opacities;
+  g.colors = s.colors;
+  EXPECT_THROW(rast.render(g, cam, RenderSettings{}), c10::Error);
+  g.means = s.means;
+  g.colors = s.colors.narrow(1, 0, 2);
+  EXPECT_THROW(rast.render(g, cam, RenderSettings{}), c10::Error);
+}
+
+}  // namespace
+}  // namespace crpgs::raster
