@@ -3,10 +3,7 @@
 #include "crpgs/components.h"
 
 #include "crpgs/plugin.h"
-#if __has_include("raster/cpu_rasterizer.h")  // TODO(lead): drop once the rasterizer has landed
 #include "raster/cpu_rasterizer.h"
-#define CRPGS_HAVE_CPU_RASTER 1
-#endif
 
 namespace crpgs {
 namespace {
@@ -38,11 +35,7 @@ CRPGS_DESCRIPTOR_FUNCTION(identity_features_descriptor, CRPGS_KIND_FEATURES, Fea
 
 ComponentRegistry builtin_registry() {
   ComponentRegistry r;
-  std::vector<const crpgs_plugin_descriptor*> builtins = {identity_features_descriptor()};
-#ifdef CRPGS_HAVE_CPU_RASTER
-  builtins.push_back(cpu_rasterizer_descriptor());
-#endif
-  for (auto* d : builtins) {
+  for (auto* d : {cpu_rasterizer_descriptor(), identity_features_descriptor()}) {
     Status st = r.add_builtin(d);
     if (!st.ok()) throw StatusError(st);  // a broken built-in is a programming error
   }
