@@ -8,7 +8,9 @@
 /// the encoder buffers words and writes them in decoding order. A stream is
 ///   u64 final encoder state | u32 words...
 /// and the decoder checks at the end that the state is back at its initial value and that every
-/// word was consumed, which catches most corruption on top of the container's CRC.
+/// word was consumed, which catches most corruption on top of the container's CRC. (Escape
+/// bypass bits carry no redundancy: a flipped bypass bit changes that value undetected; the
+/// container's CRC is the integrity check.)
 ///
 /// Tables: a table with n in-range symbols has n + 2 CDF entries; symbol i (value offset + i)
 /// has frequency cdf[i+1] - cdf[i] >= 1, and symbol n is the escape. A value v outside
