@@ -156,6 +156,14 @@ TEST(Container, RoundTrip) {
   EXPECT_EQ(c->file_size, file.size());
 }
 
+// Golden: the container layout is versioned; a change must bump kContainerMajorVersion.
+TEST(Container, LayoutIsStable) {
+  const Bytes file = sample_writer().finish();
+  ASSERT_EQ(file.size(), 181u);
+  EXPECT_EQ(std::string(file.begin(), file.begin() + 6), std::string("CRPG\x01\x00", 6));
+  EXPECT_EQ(crc32(file), 2249644634u);
+}
+
 TEST(Container, WriterRefusesBadSections) {
   ContainerWriter w;
   EXPECT_EQ(w.add_section("GEO", "c", 1, 0, {}).code(), StatusCode::kInvalidArgument);

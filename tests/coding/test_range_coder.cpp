@@ -432,3 +432,46 @@ TEST(Bernoulli, EdgeCasesAndCorruption) {
 
 }  // namespace
 }  // namespace crpgs::coding
+
+namespace crpgs::coding {
+namespace {
+
+// Golden: the stream format and the integer tables are part of the bitstream version. A change
+// here means old files no longer decode: bump the container version instead of the constant.
+// Inputs use only IEEE-exact arithmetic and raw mt19937 output (both fully specified).
+TEST(RangeCoderGolden, ChunkedAndBernoulliStreamsAreStable) {
+  std::vector<CdfTable> tables;
+  for (int t = 0; t < 4; ++t) {
+    std::vector<double> pmf(9 + 4 * t);
+    for (size_t i = 0; i < pmf.size(); ++i) {
+      const double d = double(i) - double(pmf.size() / 2);
+      pmf[i] = 1.0 / (1.0 + d * d * (t + 1));
+    }
+    double sum = 0;
+    for (double p : pmf) sum += p;
+    for (double& p : pmf) p *= 0.999 / sum;
+    tables.push_back(make_cdf_table(pmf, -int32_t(pmf.size() / 2)).value());
+  }
+  const CdfTableSet set = CdfTableSet::create(tables).value();
+  std::mt19937 rng(2024);
+  std::vector<uint32_t> idx(25000);
+  std::vector<int32_t> sym(idx.size());
+  for (size_t i = 0; i < idx.size(); ++i) {
+    idx[i] = rng() % 4;
+    sym[i] = int32_t(rng() % 11) - 5;
+    if (i % 997 == 0) sym[i] = int32_t(rng());  // escapes
+  }
+  auto enc = ChunkedEncoder(10000).encode(sym, idx, set);
+  ASSERT_TRUE(enc.ok());
+  EXPECT_EQ(enc->size(), 16560u);
+  EXPECT_EQ(crc32(enc.value()), 2948501301u);
+  std::vector<uint8_t> bits(10000);
+  for (auto& b : bits) b = rng() % 7 == 0;
+  auto bern = encode_bernoulli(bits);
+  ASSERT_TRUE(bern.ok());
+  EXPECT_EQ(bern->size(), 726u);
+  EXPECT_EQ(crc32(bern.value()), 661291671u);
+}
+
+}  // namespace
+}  // namespace crpgs::coding
