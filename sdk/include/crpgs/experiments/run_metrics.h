@@ -1,0 +1,88 @@
+/// @file run_metrics.h
+/// @brief metrics.json: what one training run measured (size, quality per test view, times,
+/// PSNR-vs-time trace, peak memory, bitstream breakdown). Written by `crpgs train` at the end
+/// of a run, read by `crpgs sweep` (a run with a readable metrics.json is finished) and
+/// `crpgs report`.
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "crpgs/status.h"
+
+namespace crpgs::experiments {
+
+/// Format tag stored in every metrics.json ("format" key).
+inline constexpr const char* kRunMetricsFormat = "crpgs.run_metrics/1";
+
+/// What the bytes of a bitstream encode.
+enum class BitstreamCategory {
+  kGeometry,   ///< anchor positions
+  kFeatures,   ///< anchor features
+  kScaling,    ///< anchor scalings
+  kOffsets,    ///< neural Gaussian offsets
+  kMasks,      ///< pruning masks
+  kLinks,      ///< cross-representation links
+  kHashGrids,  ///< hash-grid context
+  kMlps,       ///< MLP weights
+  kOther,      ///< headers, anything else
+};
+inline constexpr int kNumBitstreamCategories = 9;
+/// "geometry", "features", "scaling", "offsets", "masks", "links", "hash_grids", "mlps", "other".
+const char* category_name(BitstreamCategory c);
+/// Bytes per category, indexed by static_cast<int>(BitstreamCategory).
+using BitstreamBreakdown = std::array<uint64_t, kNumBitstreamCategories>;
+
+struct ViewMetrics {
+  std::string name;
+  double psnr = 0;  ///< dB
+  double ssim = 0;
+  double render_seconds = 0;  ///< time to render this view (NaN if not measured)
+};
+
+/// One point of the PSNR-vs-training-time trace.
+struct TracePoint {
+  double seconds = 0;  ///< training wall-clock since the start (excluding evaluation)
+  int iteration = 0;
+  double psnr = 0;  ///< mean test PSNR, dB
+};
+
+struct RunMetrics {
+  std::string method;       ///< e.g. "hac", "crpgs" (the sweep's run.json may relabel it)
+  std::string dataset;      ///< e.g. "fern"
+  double lambda = NAN;      ///< rate-distortion trade-off; NaN when not applicable
+  std::string config_hash;  ///< Config::hash() of the resolved config, hex
+
+  uint64_t size_bytes = 0;         ///< total compressed size
+  BitstreamBreakdown breakdown{};  ///< should add up to size_bytes
+
+  std::vector<ViewMetrics> views;  ///< test views
+  double psnr_mean = NAN;          ///< mean over views (filled from views if NaN)
+  double ssim_mean = NAN;
+
+  double train_seconds = NAN;
+  double encode_seconds = NAN;
+  double decode_seconds = NAN;
+  /// Mean of views[].render_seconds (filled from views if NaN).
+  double render_seconds_per_view = NAN;
+  std::vector<TracePoint> trace;
+  int64_t peak_memory_bytes = 0;  ///< peak resident set size, see peak_rss_bytes()
+};
+
+/// Peak resident set size of this process so far (getrusage ru_maxrss), in bytes.
+int64_t peak_rss_bytes();
+
+/// Fills psnr_mean, ssim_mean and render_seconds_per_view from `views` where they are NaN.
+void fill_means(RunMetrics& m);
+
+std::string to_json(const RunMetrics& m);
+StatusOr<RunMetrics> run_metrics_from_json(const std::string& text);
+
+/// Writes metrics.json atomically (after fill_means).
+Status write_run_metrics(const std::string& path, const RunMetrics& m);
+StatusOr<RunMetrics> read_run_metrics(const std::string& path);
+
+}  // namespace crpgs::experiments

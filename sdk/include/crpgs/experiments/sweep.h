@@ -1,0 +1,135 @@
+/// @file sweep.h
+/// @brief Sweeps: a YAML file lists base configs, a grid of overrides and datasets; it expands
+/// to runs (one directory each, with its resolved config, run.json, logs and metrics.json) that
+/// run locally with N workers or as a Slurm job array. Resumable: a run whose metrics.json is
+/// readable and that left no `.running` marker is finished and skipped; any other is rerun
+/// (with `--resume` when its directory holds a checkpoint).
+///
+/// Sweep file:
+///   name: fern_rd
+///   output: runs/fern_rd            # runs directory (relative to the working directory)
+///   configs:                        # a path, or {name, path, set: {key: value}}
+///     - configs/hac.yaml
+///     - {name: crpgs, path: configs/crpgs.yaml}
+///   overrides:                      # grid, expanded as a Cartesian product (first key slowest)
+///     entropy.lambda: [1.0e-4, 5.0e-4, 1.0e-3, 4.0e-3]
+///   rate_key: entropy.lambda        # the grid key that moves along an RD curve (default: the
+///                                   # first key whose last part contains "lambda")
+///   datasets:
+///     - {name: fern, set: {dataset.format: llff, dataset.path: /data/fern}}
+///   resources: {cpus: 4, mem: 16G, time: "08:00:00", partition: batch}   # Slurm
+///   workers: 2                      # local parallel runs
+#pragma once
+
+#include <cmath>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "crpgs/status.h"
+
+namespace crpgs {
+class ComponentRegistry;
+}
+
+namespace crpgs::experiments {
+
+/// key=value pairs, the value as YAML text (e.g. "1.0e-4", "[1, 2]").
+using Overrides = std::vector<std::pair<std::string, std::string>>;
+
+struct SweepConfig {
+  std::string name;  ///< method label; default: the file's stem
+  std::string path;
+  Overrides set;
+};
+
+struct SweepDataset {
+  std::string name;
+  Overrides set;
+};
+
+struct SweepResources {
+  int cpus = 1;
+  std::string mem;        ///< Slurm --mem, e.g. "16G"; empty = cluster default
+  std::string time;       ///< Slurm --time, e.g. "08:00:00"
+  std::string partition;  ///< Slurm --partition
+  int max_parallel = 0;   ///< array throttle (%N); 0 = none
+};
+
+struct SweepSpec {
+  std::string name;
+  std::string file;    ///< where it was loaded from (for messages and the Slurm script)
+  std::string output;  ///< runs directory
+  std::vector<SweepConfig> configs;
+  std::vector<std::pair<std::string, std::vector<std::string>>> grid;
+  std::string rate_key;
+  std::vector<SweepDataset> datasets;  ///< empty = one unnamed dataset (the configs' own)
+  SweepResources resources;
+  int workers = 1;
+};
+
+StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text, const std::string& name);
+StatusOr<SweepSpec> load_sweep(const std::string& path);
+
+struct SweepRun {
+  int index = 0;
+  std::string id;      ///< "<dataset>/<config>/<key>-<value>_...", deterministic
+  std::string dir;     ///< runs_dir/id
+  std::string method;  ///< config name plus the non-rate overrides, e.g. "crpgs sfa=0.5"
+  std::string dataset;
+  std::string config_path;
+  Overrides overrides;  ///< config set, then dataset set, then grid values (applied in order)
+  double rate = NAN;    ///< the rate_key value, when numeric
+};
+
+/// Datasets x configs x grid, in that nesting order. `runs_dir` empty = spec.output.
+std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir = "");
+
+/// Writes RUN/config.yaml (base config + overrides, resolved against `registry` when non-null)
+/// and RUN/run.json (id, method, dataset, rate, overrides), atomically.
+Status prepare_run(const SweepRun& run, const ComponentRegistry* registry);
+
+enum class RunState { kPending, kComplete, kInterrupted };
+/// kComplete: metrics.json readable and no `.running` marker. kInterrupted: a marker was left
+/// behind (the run or the sweep was killed). kPending otherwise.
+RunState run_state(const std::string& run_dir);
+
+struct ExecOptions {
+  int workers = 1;
+  std::string runner;  ///< executable called as `runner train -c RUN/config.yaml -o RUN [--resume]`
+  const ComponentRegistry* registry =
+      nullptr;           ///< to resolve configs; null = write them unresolved
+  bool dry_run = false;  ///< print what would run, run nothing
+  std::function<void(const std::string&)> log;  ///< progress lines (default: stdout)
+};
+
+struct SweepSummary {
+  int total = 0, skipped = 0, succeeded = 0, failed = 0;
+  std::vector<std::string> failed_ids;
+};
+
+/// Runs every unfinished run, `workers` at a time, each as a subprocess with stdout/stderr
+/// appended to RUN/stdout.log and RUN/stderr.log. A run succeeded when its process exits 0 and
+/// left a readable metrics.json.
+StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const ExecOptions& opt);
+
+/// Runs one run in this process's foreground (used by Slurm array tasks). Already complete:
+/// returns OK without running.
+Status run_one(const SweepRun& run, const ExecOptions& opt);
+
+/// The sbatch script for a job array over `indices` (each task: `crpgs_exe sweep SWEEP -o RUNS
+/// --run-index $SLURM_ARRAY_TASK_ID`). Paths should be absolute.
+std::string slurm_script(const SweepSpec& spec, const std::vector<int>& indices,
+                         const std::string& crpgs_exe, const std::string& sweep_file,
+                         const std::string& runs_dir);
+/// Writes RUNS/sweep.sbatch and submits it with `sbatch --parsable`; returns the job id.
+/// `indices` must be non-empty.
+StatusOr<std::string> submit_slurm(const SweepSpec& spec, const std::vector<int>& indices,
+                                   const std::string& crpgs_exe, const std::string& sweep_file,
+                                   const std::string& runs_dir);
+
+/// readlink(/proc/self/exe).
+std::string self_executable();
+
+}  // namespace crpgs::experiments

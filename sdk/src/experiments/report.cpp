@@ -1,0 +1,507 @@
+/// @file report.cpp
+#include "crpgs/experiments/report.h"
+
+#include <stdlib.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <set>
+
+#include "crpgs/atomic_file.h"
+#include "crpgs/experiments/bd_rate.h"
+#include "io/json.h"
+
+namespace crpgs::experiments {
+namespace {
+namespace fs = std::filesystem;
+
+using Table = std::vector<std::vector<std::string>>;  // first row is the header
+
+std::string fmt(const char* f, double v) {
+  if (!std::isfinite(v)) return "—";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+std::string rate_text(double r) {
+  if (!std::isfinite(r)) return "—";
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", r);
+  return buf;
+}
+
+std::string file_part(const std::string& s) {
+  std::string out;
+  for (char c : s) out += std::isalnum(static_cast<unsigned char>(c)) || c == '-' ? c : '_';
+  return out;
+}
+
+std::string md_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) out += c == '|' ? std::string("\\|") : std::string(1, c);
+  return out;
+}
+std::string html_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    if (c == '<')
+      out += "&lt;";
+    else if (c == '>')
+      out += "&gt;";
+    else if (c == '&')
+      out += "&amp;";
+    else if (c == '"')
+      out += "&quot;";
+    else
+      out += c;
+  }
+  return out;
+}
+/// A gnuplot double-quoted string.
+std::string gp_quote(const std::string& s) {
+  std::string out = "\"";
+  for (char c : s) out += (c == '"' || c == '\\') ? std::string("\\") + c : std::string(1, c);
+  return out + "\"";
+}
+
+std::string md_table(const Table& t) {
+  std::string s;
+  for (size_t r = 0; r < t.size(); ++r) {
+    s += "|";
+    for (const auto& c : t[r]) s += " " + md_escape(c) + " |";
+    s += "\n";
+    if (r == 0) {
+      s += "|";
+      for (size_t c = 0; c < t[0].size(); ++c) s += c == 0 ? " --- |" : " ---: |";
+      s += "\n";
+    }
+  }
+  return s + "\n";
+}
+std::string html_table(const Table& t) {
+  std::string s = "<table>\n";
+  for (size_t r = 0; r < t.size(); ++r) {
+    s += "<tr>";
+    for (const auto& c : t[r])
+      s += (r == 0 ? "<th>" : "<td>") + html_escape(c) + (r == 0 ? "</th>" : "</td>");
+    s += "</tr>\n";
+  }
+  return s + "</table>\n";
+}
+
+/// Runs a command, returns its exit status and combined output.
+int run_capture(const std::string& cmd, std::string& out) {
+  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
+  if (!p) return -1;
+  char buf[512];
+  while (std::fgets(buf, sizeof buf, p)) out += buf;
+  return pclose(p);
+}
+
+std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+/// One report section (a dataset): its runs grouped by method in sweep order.
+struct Group {
+  std::string dataset;
+  std::vector<std::string> methods;
+  std::map<std::string, std::vector<const ReportRun*>> by_method;  // sorted by size
+};
+
+std::vector<RdPoint> rd_points(const std::vector<const ReportRun*>& runs) {
+  std::vector<RdPoint> p;
+  for (const auto* r : runs)
+    p.push_back({static_cast<double>(r->metrics.size_bytes), r->metrics.psnr_mean});
+  return p;
+}
+
+/// Draws plots with gnuplot: data files and scripts in a scratch dir, each PNG rendered there
+/// and then moved into place with write_file_atomic.
+class Plotter {
+ public:
+  Plotter(std::string gnuplot, std::string out_dir, std::string scratch)
+      : gnuplot_(std::move(gnuplot)), out_(std::move(out_dir)), tmp_(std::move(scratch)) {}
+
+  /// Writes a data file; returns its path.
+  std::string data(const std::string& name, const std::string& text) {
+    const std::string path = tmp_ + "/" + name;
+    FILE* f = std::fopen(path.c_str(), "w");
+    if (f) {
+      std::fputs(text.c_str(), f);
+      std::fclose(f);
+    }
+    return path;
+  }
+
+  /// Renders `body` (gnuplot commands after the terminal setup) to OUT/png_name.
+  Status plot(const std::string& png_name, const std::string& body, int width = 900,
+              int height = 600) {
+    const std::string tmp_png = tmp_ + "/" + png_name;
+    std::string script = "set terminal pngcairo size " + std::to_string(width) + "," +
+                         std::to_string(height) + " font \"sans,10\" noenhanced\n";
+    script += "set output " + gp_quote(tmp_png) + "\nset grid\nset key outside right top\n";
+    script += body + "\nunset output\n";
+    const std::string script_path = data(png_name + ".gp", script);
+    std::string out;
+    const int rc = run_capture(shell_quote(gnuplot_) + " " + shell_quote(script_path), out);
+    if (rc != 0) return Status(StatusCode::kInternal, "gnuplot failed on " + png_name + ": " + out);
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> png, read_file_bytes(tmp_png));
+    CRPGS_RETURN_IF_ERROR(write_file_atomic(out_ + "/" + png_name, png));
+    pngs.push_back(png_name);
+    return OkStatus();
+  }
+
+  std::vector<std::string> pngs;
+
+ private:
+  std::string gnuplot_, out_, tmp_;
+};
+
+const char* kTimeLabel[3] = {"encode time (s)", "decode time (s)", "render time per view (ms)"};
+
+/// `plot` clause listing one series per method from per-method data files.
+Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& names) {
+  const std::string ds = file_part(g.dataset);
+  // Data files: one per method: size_MB psnr enc dec render_ms.
+  std::vector<std::string> files;
+  for (size_t i = 0; i < g.methods.size(); ++i) {
+    std::string text = "# size_MB psnr encode_s decode_s render_ms\n";
+    for (const auto* r : g.by_method.at(g.methods[i])) {
+      char buf[256];
+      const auto& m = r->metrics;
+      auto nan_text = [](double v) { return std::isfinite(v) ? std::to_string(v) : "NaN"; };
+      std::snprintf(buf, sizeof buf, "%.9g %.6f %s %s %s\n", m.size_bytes / 1e6, m.psnr_mean,
+                    nan_text(m.encode_seconds).c_str(), nan_text(m.decode_seconds).c_str(),
+                    nan_text(m.render_seconds_per_view * 1e3).c_str());
+      text += buf;
+    }
+    files.push_back(p.data(ds + "_m" + std::to_string(i) + ".dat", text));
+  }
+  auto series = [&](const std::string& using_clause) {
+    std::string s;
+    for (size_t i = 0; i < files.size(); ++i)
+      s += (i ? ", " : "") + gp_quote(files[i]) + " using " + using_clause +
+           " with linespoints lw 2 pt 7 title " + gp_quote(g.methods[i]);
+    return s;
+  };
+
+  // RD curves.
+  {
+    const std::string name = "rd_" + ds + ".png";
+    std::string b = "set title " + gp_quote("Rate-distortion: " + g.dataset) + "\n";
+    b += "set xlabel \"size (MB, log scale)\"\nset ylabel \"PSNR (dB)\"\nset logscale x\n";
+    b += "plot " + series("1:2");
+    CRPGS_RETURN_IF_ERROR(p.plot(name, b));
+    names.push_back(name);
+  }
+  // PSNR vs training wall-clock, one line per run.
+  {
+    std::string plot_list;
+    int k = 0;
+    for (const auto& method : g.methods)
+      for (const auto* r : g.by_method.at(method)) {
+        if (r->metrics.trace.empty()) continue;
+        std::string text = "# seconds iteration psnr\n";
+        for (const auto& t : r->metrics.trace) {
+          char buf[96];
+          std::snprintf(buf, sizeof buf, "%.6f %d %.6f\n", t.seconds, t.iteration, t.psnr);
+          text += buf;
+        }
+        const std::string f = p.data(ds + "_trace" + std::to_string(k++) + ".dat", text);
+        const std::string label =
+            method + (std::isfinite(r->rate) ? " λ=" + rate_text(r->rate) : "");
+        plot_list += (plot_list.empty() ? "" : ", ") + gp_quote(f) +
+                     " using 1:3 with lines lw 2 title " + gp_quote(label);
+      }
+    if (!plot_list.empty()) {
+      const std::string name = "time_" + ds + ".png";
+      std::string b = "set title " + gp_quote("Test PSNR vs training time: " + g.dataset) + "\n";
+      b += "set xlabel \"training wall-clock (s)\"\nset ylabel \"PSNR (dB)\"\nplot " + plot_list;
+      CRPGS_RETURN_IF_ERROR(p.plot(name, b, 1000, 600));
+      names.push_back(name);
+    }
+  }
+  // Size and PSNR against encode, decode and render time.
+  {
+    const std::string name = "cost_" + ds + ".png";
+    std::string b = "set multiplot layout 2,3 title " +
+                    gp_quote("What quality and size cost in time: " + g.dataset) + "\n";
+    b += "set key inside bottom right\n";
+    for (int row = 0; row < 2; ++row)
+      for (int col = 0; col < 3; ++col) {
+        b += "set xlabel " + gp_quote(kTimeLabel[col]) + "\n";
+        b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MB)\"") + "\n";
+        b += "plot " + series(std::to_string(3 + col) + ":" + (row == 0 ? "2" : "1")) + "\n";
+      }
+    b += "unset multiplot";
+    CRPGS_RETURN_IF_ERROR(p.plot(name, b, 1500, 900));
+    names.push_back(name);
+  }
+  // Bitstream breakdown per method: one stacked bar per run, in % of its size.
+  for (size_t i = 0; i < g.methods.size(); ++i) {
+    const auto& runs = g.by_method.at(g.methods[i]);
+    std::string text = "run";
+    for (int c = 0; c < kNumBitstreamCategories; ++c)
+      text += std::string(" ") + category_name(static_cast<BitstreamCategory>(c));
+    text += "\n";
+    bool any = false;
+    for (const auto* r : runs) {
+      uint64_t total = 0;
+      for (auto v : r->metrics.breakdown) total += v;
+      if (total == 0) continue;
+      any = true;
+      std::string label = std::isfinite(r->rate) ? "λ=" + rate_text(r->rate)
+                                                 : fmt("%.2fMB", r->metrics.size_bytes / 1e6);
+      text += gp_quote(label);
+      for (auto v : r->metrics.breakdown) text += " " + std::to_string(100.0 * v / total);
+      text += "\n";
+    }
+    if (!any) continue;
+    const std::string f = p.data(ds + "_bd" + std::to_string(i) + ".dat", text);
+    const std::string name = "breakdown_" + ds + "_" + file_part(g.methods[i]) + ".png";
+    std::string b =
+        "set title " + gp_quote("Bitstream breakdown: " + g.methods[i] + " on " + g.dataset) + "\n";
+    b += "set style data histograms\nset style histogram rowstacked\n"
+         "set style fill solid 0.85 border -1\nset boxwidth 0.7\nset yrange [0:100]\n"
+         "set ylabel \"share of the bitstream (%)\"\nset key outside right top invert\n"
+         "colors = \"#4e79a7 #f28e2b #76b7b2 #e15759 #59a14f #edc948 #b07aa1 #9c755f #bab0ac\"\n";
+    b += "plot for [c=2:" + std::to_string(kNumBitstreamCategories + 1) + "] " + gp_quote(f) +
+         " using c:xtic(1) title columnheader(c) lc rgb word(colors, c - 1)";
+    CRPGS_RETURN_IF_ERROR(p.plot(name, b));
+    names.push_back(name);
+  }
+  return OkStatus();
+}
+
+}  // namespace
+
+std::string base64_encode(const std::string& in) {
+  static const char* kAlpha = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((in.size() + 2) / 3 * 4);
+  size_t i = 0;
+  for (; i + 2 < in.size(); i += 3) {
+    const uint32_t v = (uint8_t(in[i]) << 16) | (uint8_t(in[i + 1]) << 8) | uint8_t(in[i + 2]);
+    for (int s = 18; s >= 0; s -= 6) out += kAlpha[(v >> s) & 63];
+  }
+  if (i < in.size()) {
+    uint32_t v = uint8_t(in[i]) << 16;
+    if (i + 1 < in.size()) v |= uint8_t(in[i + 1]) << 8;
+    out += kAlpha[(v >> 18) & 63];
+    out += kAlpha[(v >> 12) & 63];
+    out += i + 1 < in.size() ? kAlpha[(v >> 6) & 63] : '=';
+    out += '=';
+  }
+  return out;
+}
+
+StatusOr<CollectedRuns> collect_runs(const std::string& runs_dir) {
+  std::error_code ec;
+  if (!fs::is_directory(runs_dir, ec))
+    return Status(StatusCode::kNotFound, runs_dir + ": not a directory");
+  CollectedRuns out;
+  std::vector<fs::path> dirs;
+  for (auto it = fs::recursive_directory_iterator(runs_dir, ec);
+       !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const auto name = it->path().filename();
+    if (it->is_regular_file() && (name == "metrics.json" || name == "run.json"))
+      dirs.push_back(it->path().parent_path());
+  }
+  std::sort(dirs.begin(), dirs.end());
+  dirs.erase(std::unique(dirs.begin(), dirs.end()), dirs.end());
+  for (const auto& d : dirs) {
+    const std::string dir = d.string();
+    ReportRun r;
+    r.dir = dir;
+    r.id = fs::relative(d, runs_dir, ec).string();
+    auto m = read_run_metrics(dir + "/metrics.json");
+    if (!m.ok() || fs::exists(d / ".running", ec)) {
+      out.unfinished.push_back(r.id);
+      continue;
+    }
+    r.metrics = std::move(m).value();
+    r.method = r.metrics.method;
+    r.dataset = r.metrics.dataset;
+    r.rate = r.metrics.lambda;
+    if (fs::exists(d / "run.json", ec)) {
+      auto info = io::read_json_file(dir + "/run.json");
+      if (info.ok()) {
+        const auto& j = info.value();
+        if (auto* v = j.find("id"); v && v->is_string()) r.id = v->string;
+        if (auto* v = j.find("method"); v && v->is_string()) r.method = v->string;
+        if (auto* v = j.find("dataset"); v && v->is_string()) r.dataset = v->string;
+        if (auto* v = j.find("rate"); v && v->is_number()) r.rate = v->number;
+        if (auto* v = j.find("index"); v && v->is_number()) r.order = int(v->number);
+      }
+    }
+    if (r.method.empty()) r.method = "unnamed";
+    if (r.dataset.empty()) r.dataset = "unnamed";
+    out.runs.push_back(std::move(r));
+  }
+  std::stable_sort(out.runs.begin(), out.runs.end(),
+                   [](const ReportRun& a, const ReportRun& b) { return a.order < b.order; });
+  return out;
+}
+
+bool gnuplot_available(const std::string& gnuplot) {
+  std::string out;
+  return run_capture(shell_quote(gnuplot) + " --version", out) == 0;
+}
+
+StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOptions& opt_in) {
+  ReportOptions opt = opt_in;
+  if (opt.out_dir.empty()) opt.out_dir = (fs::path(runs_dir) / "report").string();
+  CRPGS_ASSIGN_OR_RETURN(CollectedRuns collected, collect_runs(runs_dir));
+  std::error_code ec;
+  fs::create_directories(opt.out_dir, ec);
+  if (ec)
+    return Status(StatusCode::kInternal, "cannot create " + opt.out_dir + ": " + ec.message());
+
+  // Datasets and methods in sweep order.
+  std::vector<Group> groups;
+  for (const auto& r : collected.runs) {
+    auto g = std::find_if(groups.begin(), groups.end(),
+                          [&](const Group& x) { return x.dataset == r.dataset; });
+    if (g == groups.end()) {
+      groups.push_back({r.dataset, {}, {}});
+      g = groups.end() - 1;
+    }
+    if (!g->by_method.count(r.method)) g->methods.push_back(r.method);
+    g->by_method[r.method].push_back(&r);
+  }
+  for (auto& g : groups)
+    for (auto& [m, runs] : g.by_method)
+      std::sort(runs.begin(), runs.end(), [](const ReportRun* a, const ReportRun* b) {
+        return a->metrics.size_bytes < b->metrics.size_bytes;
+      });
+
+  ReportOutput result;
+  const bool plots = opt.plots && gnuplot_available(opt.gnuplot);
+  if (opt.plots && !plots)
+    result.notes.push_back("gnuplot not found (" + opt.gnuplot +
+                           "): no plots; install the Debian package gnuplot-nox");
+  std::string scratch;
+  if (plots) {
+    std::string templ = (fs::temp_directory_path() / "crpgs-report-XXXXXX").string();
+    if (!mkdtemp(templ.data())) return Status(StatusCode::kInternal, "mkdtemp failed");
+    scratch = templ;
+  }
+  Plotter plotter(opt.gnuplot, opt.out_dir, scratch);
+
+  std::string summary = "Runs directory: " + runs_dir + "; " +
+                        std::to_string(collected.runs.size()) + " finished runs";
+  if (!collected.unfinished.empty())
+    summary += ", " + std::to_string(collected.unfinished.size()) + " unfinished (" + [&] {
+      std::string s;
+      for (size_t i = 0; i < collected.unfinished.size() && i < 10; ++i)
+        s += (i ? ", " : "") + collected.unfinished[i];
+      return s + (collected.unfinished.size() > 10 ? ", ..." : "");
+    }() + ")";
+  summary += ".";
+  std::string md = "# Sweep report\n\n" + summary + "\n\n";
+  std::string html_body = "<h1>Sweep report</h1>\n<p>" + html_escape(summary) + "</p>\n";
+  const std::string bd_note =
+      "BD-rate: average size change of *test* against *anchor* at equal PSNR (negative is "
+      "smaller); BD-PSNR: average PSNR gain at equal size. Dominated points are removed, a PCHIP "
+      "is fitted on log(size), and the difference is averaged over the common interval; — means "
+      "no common interval (or fewer than 2 points).\n\n";
+
+  Status plot_status = OkStatus();
+  for (const auto& g : groups) {
+    md += "## " + g.dataset + "\n\n### Rate–distortion points\n\n";
+    html_body += "<h2>" + html_escape(g.dataset) + "</h2>\n<h3>Rate–distortion points</h3>\n";
+    Table rd = {{"method", "λ", "size (MB)", "PSNR (dB)", "SSIM", "train (s)", "encode (s)",
+                 "decode (s)", "render (ms/view)", "peak mem (MB)", "run"}};
+    for (const auto& method : g.methods)
+      for (const auto* r : g.by_method.at(method)) {
+        const auto& m = r->metrics;
+        rd.push_back(
+            {method, rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6), fmt("%.3f", m.psnr_mean),
+             fmt("%.4f", m.ssim_mean), fmt("%.1f", m.train_seconds), fmt("%.3f", m.encode_seconds),
+             fmt("%.3f", m.decode_seconds), fmt("%.2f", m.render_seconds_per_view * 1e3),
+             m.peak_memory_bytes > 0 ? fmt("%.0f", m.peak_memory_bytes / 1048576.0) : "—", r->id});
+      }
+    md += md_table(rd);
+    html_body += html_table(rd);
+
+    if (g.methods.size() >= 2) {
+      Table bd = {{"anchor", "test", "BD-rate (%)", "BD-PSNR (dB)"}};
+      for (size_t a = 0; a < g.methods.size(); ++a)
+        for (size_t t = a + 1; t < g.methods.size(); ++t) {
+          const auto pa = rd_points(g.by_method.at(g.methods[a]));
+          const auto pt = rd_points(g.by_method.at(g.methods[t]));
+          const auto rate = bd_rate(pa, pt);
+          const auto psnr = bd_psnr(pa, pt);
+          bd.push_back({g.methods[a], g.methods[t], rate ? fmt("%+.2f", *rate) : "—",
+                        psnr ? fmt("%+.3f", *psnr) : "—"});
+        }
+      md += "### BD-rate and BD-PSNR\n\n" + bd_note + md_table(bd);
+      html_body +=
+          "<h3>BD-rate and BD-PSNR</h3>\n<p>" + html_escape(bd_note) + "</p>\n" + html_table(bd);
+    }
+
+    Table shares = {{"method"}};
+    for (int c = 0; c < kNumBitstreamCategories; ++c)
+      shares[0].push_back(category_name(static_cast<BitstreamCategory>(c)));
+    for (const auto& method : g.methods) {
+      std::vector<double> sum(kNumBitstreamCategories, 0.0);
+      int n = 0;
+      for (const auto* r : g.by_method.at(method)) {
+        uint64_t total = 0;
+        for (auto v : r->metrics.breakdown) total += v;
+        if (total == 0) continue;
+        ++n;
+        for (int c = 0; c < kNumBitstreamCategories; ++c)
+          sum[c] += 100.0 * r->metrics.breakdown[c] / total;
+      }
+      std::vector<std::string> row = {method};
+      for (double s : sum) row.push_back(n ? fmt("%.1f", s / n) : "—");
+      shares.push_back(row);
+    }
+    const std::string share_title = "### Bitstream breakdown (mean share over runs, %)\n\n";
+    md += share_title + md_table(shares);
+    html_body += "<h3>Bitstream breakdown (mean share over runs, %)</h3>\n" + html_table(shares);
+
+    if (plots) {
+      std::vector<std::string> names;
+      Status st = plots_for_group(plotter, g, names);
+      if (!st.ok() && plot_status.ok()) plot_status = st;
+      if (!names.empty()) {
+        md += "### Plots\n\n";
+        html_body += "<h3>Plots</h3>\n";
+      }
+      for (const auto& n : names) {
+        md += "![" + n + "](" + n + ")\n\n";
+        auto bytes = read_file_bytes(opt.out_dir + "/" + n);
+        if (bytes.ok())
+          html_body += "<p><img alt=\"" + html_escape(n) + "\" src=\"data:image/png;base64," +
+                       base64_encode(std::string(bytes->begin(), bytes->end())) + "\"></p>\n";
+      }
+    }
+  }
+  for (const auto& n : result.notes) md += "> " + n + "\n\n";
+  if (!scratch.empty()) fs::remove_all(scratch, ec);
+  if (!plot_status.ok()) return plot_status;
+
+  const std::string html =
+      "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>crpgs sweep report</title>\n"
+      "<style>body{font-family:sans-serif;max-width:1600px;margin:2em auto;padding:0 1em}"
+      "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+      "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}"
+      "</style></head><body>\n" +
+      html_body + "</body></html>\n";
+  result.markdown = opt.out_dir + "/report.md";
+  result.html = opt.out_dir + "/report.html";
+  CRPGS_RETURN_IF_ERROR(write_file_atomic(result.markdown, md));
+  CRPGS_RETURN_IF_ERROR(write_file_atomic(result.html, html));
+  for (const auto& n : plotter.pngs) result.pngs.push_back(opt.out_dir + "/" + n);
+  return result;
+}
+
+}  // namespace crpgs::experiments

@@ -1,0 +1,151 @@
+/// @file run_metrics.cpp
+#include "crpgs/experiments/run_metrics.h"
+
+#include <sys/resource.h>
+
+#include "crpgs/atomic_file.h"
+#include "io/json.h"
+#include "io/json_writer.h"
+
+namespace crpgs::experiments {
+namespace {
+
+using io::JsonValue;
+
+double num(const JsonValue& obj, const char* key, double fallback = NAN) {
+  const JsonValue* v = obj.find(key);
+  return v && v->is_number() ? v->number : fallback;
+}
+std::string str(const JsonValue& obj, const char* key) {
+  const JsonValue* v = obj.find(key);
+  return v && v->is_string() ? v->string : std::string();
+}
+
+}  // namespace
+
+const char* category_name(BitstreamCategory c) {
+  static const char* const kNames[kNumBitstreamCategories] = {"geometry",   "features", "scaling",
+                                                              "offsets",    "masks",    "links",
+                                                              "hash_grids", "mlps",     "other"};
+  const int i = static_cast<int>(c);
+  return i >= 0 && i < kNumBitstreamCategories ? kNames[i] : "other";
+}
+
+int64_t peak_rss_bytes() {
+  rusage ru{};
+  if (getrusage(RUSAGE_SELF, &ru) != 0) return 0;
+  return static_cast<int64_t>(ru.ru_maxrss) * 1024;  // Linux reports KiB
+}
+
+void fill_means(RunMetrics& m) {
+  if (m.views.empty()) return;
+  double p = 0, s = 0, r = 0;
+  int nr = 0;
+  for (const auto& v : m.views) {
+    p += v.psnr;
+    s += v.ssim;
+    if (std::isfinite(v.render_seconds)) r += v.render_seconds, ++nr;
+  }
+  const double n = static_cast<double>(m.views.size());
+  if (std::isnan(m.psnr_mean)) m.psnr_mean = p / n;
+  if (std::isnan(m.ssim_mean)) m.ssim_mean = s / n;
+  if (std::isnan(m.render_seconds_per_view) && nr > 0) m.render_seconds_per_view = r / nr;
+}
+
+std::string to_json(const RunMetrics& in) {
+  RunMetrics m = in;
+  fill_means(m);
+  io::JsonWriter w;
+  w.begin_object();
+  w.key("format").value(kRunMetricsFormat);
+  w.key("method").value(m.method);
+  w.key("dataset").value(m.dataset);
+  w.key("lambda").value(m.lambda);
+  w.key("config_hash").value(m.config_hash);
+  w.key("size_bytes").value(m.size_bytes);
+  w.key("bitstream").begin_object();
+  for (int c = 0; c < kNumBitstreamCategories; ++c)
+    w.key(category_name(static_cast<BitstreamCategory>(c))).value(m.breakdown[c]);
+  w.end_object();
+  w.key("psnr_mean").value(m.psnr_mean);
+  w.key("ssim_mean").value(m.ssim_mean);
+  w.key("train_seconds").value(m.train_seconds);
+  w.key("encode_seconds").value(m.encode_seconds);
+  w.key("decode_seconds").value(m.decode_seconds);
+  w.key("render_seconds_per_view").value(m.render_seconds_per_view);
+  w.key("peak_memory_bytes").value(m.peak_memory_bytes);
+  w.key("views").begin_array();
+  for (const auto& v : m.views) {
+    w.raw("{\"name\": " + io::json_quote(v.name) + ", \"psnr\": " + io::json_number(v.psnr) +
+          ", \"ssim\": " + io::json_number(v.ssim) +
+          ", \"render_seconds\": " + io::json_number(v.render_seconds) + "}");
+  }
+  w.end_array();
+  // [seconds, iteration, psnr] triples, one per line.
+  w.key("trace").begin_array();
+  for (const auto& t : m.trace)
+    w.raw("[" + io::json_number(t.seconds) + ", " + std::to_string(t.iteration) + ", " +
+          io::json_number(t.psnr) + "]");
+  w.end_array();
+  w.end_object();
+  return w.str();
+}
+
+StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
+  CRPGS_ASSIGN_OR_RETURN(JsonValue doc, io::parse_json(text));
+  if (!doc.is_object()) return Status(StatusCode::kInvalidArgument, "metrics: not a JSON object");
+  if (str(doc, "format") != kRunMetricsFormat)
+    return Status(StatusCode::kInvalidArgument,
+                  std::string("metrics: \"format\" is not \"") + kRunMetricsFormat + "\"");
+  RunMetrics m;
+  m.method = str(doc, "method");
+  m.dataset = str(doc, "dataset");
+  m.lambda = num(doc, "lambda");
+  m.config_hash = str(doc, "config_hash");
+  const JsonValue* size = doc.find("size_bytes");
+  if (!size || !size->is_number() || size->number < 0)
+    return Status(StatusCode::kInvalidArgument, "metrics: missing \"size_bytes\"");
+  m.size_bytes = static_cast<uint64_t>(size->number);
+  if (const JsonValue* b = doc.find("bitstream"); b && b->is_object())
+    for (int c = 0; c < kNumBitstreamCategories; ++c)
+      m.breakdown[c] =
+          static_cast<uint64_t>(num(*b, category_name(static_cast<BitstreamCategory>(c)), 0));
+  m.psnr_mean = num(doc, "psnr_mean");
+  m.ssim_mean = num(doc, "ssim_mean");
+  m.train_seconds = num(doc, "train_seconds");
+  m.encode_seconds = num(doc, "encode_seconds");
+  m.decode_seconds = num(doc, "decode_seconds");
+  m.render_seconds_per_view = num(doc, "render_seconds_per_view");
+  m.peak_memory_bytes = static_cast<int64_t>(num(doc, "peak_memory_bytes", 0));
+  if (const JsonValue* views = doc.find("views"); views && views->is_array())
+    for (const auto& v : views->array) {
+      if (!v.is_object()) return Status(StatusCode::kInvalidArgument, "metrics: bad view entry");
+      m.views.push_back({str(v, "name"), num(v, "psnr"), num(v, "ssim"), num(v, "render_seconds")});
+    }
+  if (const JsonValue* trace = doc.find("trace"); trace && trace->is_array())
+    for (const auto& t : trace->array) {
+      if (!t.is_array() || t.array.size() != 3 || !t.array[0].is_number() ||
+          !t.array[1].is_number() || !t.array[2].is_number())
+        return Status(StatusCode::kInvalidArgument,
+                      "metrics: trace entries must be [seconds, iteration, psnr]");
+      m.trace.push_back(
+          {t.array[0].number, static_cast<int>(t.array[1].number), t.array[2].number});
+    }
+  fill_means(m);
+  if (std::isnan(m.psnr_mean))
+    return Status(StatusCode::kInvalidArgument, "metrics: no \"psnr_mean\" and no views");
+  return m;
+}
+
+Status write_run_metrics(const std::string& path, const RunMetrics& m) {
+  return write_file_atomic(path, to_json(m));
+}
+
+StatusOr<RunMetrics> read_run_metrics(const std::string& path) {
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
+  auto m = run_metrics_from_json(std::string(bytes.begin(), bytes.end()));
+  if (!m.ok()) return Status(m.status().code(), path + ": " + m.status().message());
+  return m;
+}
+
+}  // namespace crpgs::experiments

@@ -1,0 +1,468 @@
+/// @file sweep.cpp
+#include "crpgs/experiments/sweep.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+#include <map>
+#include <set>
+
+#include <yaml-cpp/yaml.h>
+
+#include "crpgs/atomic_file.h"
+#include "crpgs/config.h"
+#include "crpgs/experiments/run_metrics.h"
+#include "io/json_writer.h"
+
+extern char** environ;
+
+namespace crpgs::experiments {
+namespace {
+namespace fs = std::filesystem;
+
+Status bad(const std::string& file, const std::string& what) {
+  return Status(StatusCode::kInvalidArgument, file + ": " + what);
+}
+
+/// A YAML value as override text: scalars as written, the rest in flow style.
+std::string yaml_text(const YAML::Node& n) {
+  if (n.IsScalar()) return n.Scalar();
+  YAML::Emitter e;
+  e.SetMapFormat(YAML::Flow);
+  e.SetSeqFormat(YAML::Flow);
+  e << n;
+  return e.c_str();
+}
+
+Status parse_set(const YAML::Node& n, const std::string& where, Overrides& out) {
+  if (!n) return OkStatus();
+  if (!n.IsMap()) return bad(where, "'set' must be a map of key.path: value");
+  for (const auto& kv : n) out.emplace_back(kv.first.as<std::string>(), yaml_text(kv.second));
+  return OkStatus();
+}
+
+std::string sanitize(const std::string& s) {
+  std::string out;
+  for (char c : s)
+    out +=
+        (std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '+' || c == '-') ? c : '_';
+  return out.empty() ? "_" : out;
+}
+
+std::string last_part(const std::string& key) {
+  const size_t dot = key.rfind('.');
+  return dot == std::string::npos ? key : key.substr(dot + 1);
+}
+
+std::string now_text() {
+  char buf[64];
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M:%S", &tm);
+  return buf;
+}
+
+std::string shell_quote(const std::string& s) {
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+}  // namespace
+
+StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::string& name) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text_in);
+  } catch (const YAML::Exception& e) {
+    return bad(name, std::string("YAML error: ") + e.what());
+  }
+  if (!root.IsMap()) return bad(name, "a sweep file is a YAML map");
+  static const std::set<std::string> kKeys = {"name",     "output",   "configs",   "overrides",
+                                              "rate_key", "datasets", "resources", "workers"};
+  for (const auto& kv : root) {
+    const std::string k = kv.first.as<std::string>();
+    if (!kKeys.count(k))
+      return bad(name, "unknown key '" + k +
+                           "' (expected name, output, configs, overrides, rate_key, datasets, "
+                           "resources, workers)");
+  }
+  SweepSpec s;
+  s.file = name;
+  try {
+    s.name = root["name"] ? root["name"].as<std::string>() : fs::path(name).stem().string();
+    s.output = root["output"] ? root["output"].as<std::string>() : "runs/" + s.name;
+    const YAML::Node configs = root["configs"];
+    if (!configs || !configs.IsSequence() || configs.size() == 0)
+      return bad(name, "'configs' must list at least one config file");
+    std::set<std::string> names;
+    for (const auto& c : configs) {
+      SweepConfig sc;
+      if (c.IsScalar()) {
+        sc.path = c.Scalar();
+      } else if (c.IsMap()) {
+        if (!c["path"]) return bad(name, "a config entry needs 'path'");
+        sc.path = c["path"].as<std::string>();
+        if (c["name"]) sc.name = c["name"].as<std::string>();
+        CRPGS_RETURN_IF_ERROR(parse_set(c["set"], name, sc.set));
+      } else {
+        return bad(name, "a config entry is a path or {name, path, set}");
+      }
+      if (sc.name.empty()) sc.name = fs::path(sc.path).stem().string();
+      if (!names.insert(sc.name).second)
+        return bad(name, "two configs are named '" + sc.name + "' (give one a 'name')");
+      s.configs.push_back(std::move(sc));
+    }
+    if (const YAML::Node g = root["overrides"]) {
+      if (!g.IsMap()) return bad(name, "'overrides' maps key.path to a list of values");
+      for (const auto& kv : g) {
+        std::vector<std::string> values;
+        if (kv.second.IsSequence()) {
+          for (const auto& v : kv.second) values.push_back(yaml_text(v));
+        } else {
+          values.push_back(yaml_text(kv.second));
+        }
+        if (values.empty())
+          return bad(name, "override '" + kv.first.as<std::string>() + "' has no values");
+        s.grid.emplace_back(kv.first.as<std::string>(), std::move(values));
+      }
+    }
+    if (root["rate_key"]) {
+      s.rate_key = root["rate_key"].as<std::string>();
+    } else {
+      for (const auto& [k, v] : s.grid)
+        if (last_part(k).find("lambda") != std::string::npos) {
+          s.rate_key = k;
+          break;
+        }
+    }
+    if (const YAML::Node ds = root["datasets"]) {
+      if (!ds.IsSequence()) return bad(name, "'datasets' is a list of {name, set}");
+      names.clear();
+      for (const auto& d : ds) {
+        if (!d.IsMap() || !d["name"]) return bad(name, "a dataset entry needs 'name'");
+        SweepDataset sd;
+        sd.name = d["name"].as<std::string>();
+        CRPGS_RETURN_IF_ERROR(parse_set(d["set"], name, sd.set));
+        if (!names.insert(sd.name).second) return bad(name, "two datasets named " + sd.name);
+        s.datasets.push_back(std::move(sd));
+      }
+    }
+    if (const YAML::Node r = root["resources"]) {
+      if (!r.IsMap()) return bad(name, "'resources' is a map");
+      if (r["cpus"]) s.resources.cpus = r["cpus"].as<int>();
+      if (r["mem"]) s.resources.mem = r["mem"].as<std::string>();
+      if (r["time"]) s.resources.time = r["time"].as<std::string>();
+      if (r["partition"]) s.resources.partition = r["partition"].as<std::string>();
+      if (r["max_parallel"]) s.resources.max_parallel = r["max_parallel"].as<int>();
+    }
+    if (root["workers"]) s.workers = root["workers"].as<int>();
+  } catch (const YAML::Exception& e) {
+    return bad(name, std::string("bad value: ") + e.what());
+  }
+  if (s.workers < 1) return bad(name, "'workers' must be >= 1");
+  if (s.resources.cpus < 1) return bad(name, "'resources.cpus' must be >= 1");
+  return s;
+}
+
+StatusOr<SweepSpec> load_sweep(const std::string& path) {
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
+  return parse_sweep(std::string(bytes.begin(), bytes.end()), path);
+}
+
+std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir_in) {
+  const std::string runs_dir = runs_dir_in.empty() ? spec.output : runs_dir_in;
+  // Short labels for grid keys: the last part, or the whole key where last parts collide.
+  std::map<std::string, int> count;
+  for (const auto& [k, v] : spec.grid) ++count[last_part(k)];
+  std::vector<std::string> label;
+  for (const auto& [k, v] : spec.grid) label.push_back(count[last_part(k)] > 1 ? k : last_part(k));
+
+  std::vector<SweepDataset> datasets = spec.datasets;
+  if (datasets.empty()) datasets.push_back({"default", {}});
+  size_t combos = 1;
+  for (const auto& [k, v] : spec.grid) combos *= v.size();
+
+  std::vector<SweepRun> runs;
+  for (const auto& ds : datasets)
+    for (const auto& cfg : spec.configs)
+      for (size_t c = 0; c < combos; ++c) {
+        SweepRun r;
+        r.index = static_cast<int>(runs.size());
+        r.dataset = ds.name;
+        r.config_path = cfg.path;
+        r.method = cfg.name;
+        r.overrides = cfg.set;
+        r.overrides.insert(r.overrides.end(), ds.set.begin(), ds.set.end());
+        std::string tail;
+        size_t rest = c, stride = combos;
+        for (size_t g = 0; g < spec.grid.size(); ++g) {  // first key varies slowest
+          const auto& [key, values] = spec.grid[g];
+          stride /= values.size();
+          const std::string& v = values[rest / stride];
+          rest %= stride;
+          r.overrides.emplace_back(key, v);
+          tail += (tail.empty() ? "" : "_") + sanitize(label[g]) + "-" + sanitize(v);
+          if (key == spec.rate_key) {
+            char* end = nullptr;
+            const double x = std::strtod(v.c_str(), &end);
+            if (end && *end == '\0' && end != v.c_str()) r.rate = x;
+          } else {
+            r.method += " " + label[g] + "=" + v;
+          }
+        }
+        r.id = sanitize(ds.name) + "/" + sanitize(cfg.name) + "/" + (tail.empty() ? "base" : tail);
+        r.dir = (fs::path(runs_dir) / r.id).string();
+        runs.push_back(std::move(r));
+      }
+  return runs;
+}
+
+Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
+  for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
+  if (registry) {
+    auto resolved = cfg.resolve(*registry);
+    if (!resolved.ok())
+      return Status(resolved.status().code(), "run " + run.id + ": " + resolved.status().message());
+    cfg = std::move(resolved).value();
+  }
+  std::error_code ec;
+  fs::create_directories(run.dir, ec);
+  if (ec) return Status(StatusCode::kInternal, "cannot create " + run.dir + ": " + ec.message());
+  CRPGS_RETURN_IF_ERROR(cfg.save(run.dir + "/config.yaml"));
+  io::JsonWriter w;
+  w.begin_object();
+  w.key("id").value(run.id);
+  w.key("index").value(run.index);
+  w.key("method").value(run.method);
+  w.key("dataset").value(run.dataset);
+  w.key("rate").value(run.rate);
+  w.key("config").value(run.config_path);
+  w.key("overrides").begin_object();
+  for (const auto& [k, v] : run.overrides) w.key(k).value(v);
+  w.end_object();
+  w.end_object();
+  return write_file_atomic(run.dir + "/run.json", w.str());
+}
+
+RunState run_state(const std::string& run_dir) {
+  std::error_code ec;
+  if (fs::exists(run_dir + "/.running", ec)) return RunState::kInterrupted;
+  if (!fs::exists(run_dir + "/metrics.json", ec)) return RunState::kPending;
+  return read_run_metrics(run_dir + "/metrics.json").ok() ? RunState::kComplete
+                                                          : RunState::kPending;
+}
+
+namespace {
+
+struct Active {
+  pid_t pid;
+  const SweepRun* run;
+};
+
+/// Prepares the directory and starts `runner train ...` with the logs appended.
+StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
+  std::error_code ec;
+  const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
+  CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
+  fs::remove(run.dir + "/metrics.json", ec);  // stale from an interrupted attempt
+  CRPGS_RETURN_IF_ERROR(write_file_atomic(run.dir + "/.running", "started " + now_text() + "\n"));
+
+  std::vector<std::string> args = {opt.runner, "train", "-c", run.dir + "/config.yaml",
+                                   "-o",       run.dir};
+  if (resume) args.push_back("--resume");
+  const std::string header = "== " + now_text() + " " + [&] {
+    std::string cmd;
+    for (const auto& a : args) cmd += (cmd.empty() ? "" : " ") + a;
+    return cmd;
+  }() + "\n";
+  for (const char* log : {"/stdout.log", "/stderr.log"}) {
+    FILE* f = std::fopen((run.dir + log).c_str(), "a");
+    if (!f) return Status(StatusCode::kInternal, "cannot open " + run.dir + log);
+    std::fputs(header.c_str(), f);
+    std::fclose(f);
+  }
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
+  const std::string out = run.dir + "/stdout.log", err = run.dir + "/stderr.log";
+  posix_spawn_file_actions_addopen(&fa, 1, out.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
+  posix_spawn_file_actions_addopen(&fa, 2, err.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  const int rc = posix_spawn(&pid, opt.runner.c_str(), &fa, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&fa);
+  if (rc != 0) {
+    fs::remove(run.dir + "/.running", ec);
+    return Status(StatusCode::kInternal, "cannot start " + opt.runner + ": " + std::strerror(rc));
+  }
+  return pid;
+}
+
+std::string exit_text(int status) {
+  if (WIFEXITED(status)) return "exit code " + std::to_string(WEXITSTATUS(status));
+  if (WIFSIGNALED(status)) return "killed by signal " + std::to_string(WTERMSIG(status));
+  return "status " + std::to_string(status);
+}
+
+}  // namespace
+
+StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const ExecOptions& opt) {
+  auto log = opt.log ? opt.log : [](const std::string& s) { std::printf("%s\n", s.c_str()); };
+  if (!opt.dry_run && opt.runner.empty())
+    return Status(StatusCode::kInvalidArgument, "sweep: no runner executable");
+  SweepSummary sum;
+  sum.total = static_cast<int>(runs.size());
+  const std::string n = std::to_string(runs.size());
+  std::vector<const SweepRun*> todo;
+  for (const auto& r : runs) {
+    const RunState st = run_state(r.dir);
+    const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+    if (st == RunState::kComplete) {
+      ++sum.skipped;
+      log(tag + ": done, skipped");
+    } else {
+      if (opt.dry_run)
+        log(tag + (st == RunState::kInterrupted ? ": interrupted, would rerun" : ": would run"));
+      todo.push_back(&r);
+    }
+  }
+  if (opt.dry_run) return sum;
+
+  std::vector<Active> active;
+  size_t next = 0;
+  const size_t workers = static_cast<size_t>(std::max(1, opt.workers));
+  while (next < todo.size() || !active.empty()) {
+    while (next < todo.size() && active.size() < workers) {
+      const SweepRun& r = *todo[next++];
+      auto pid = launch(r, opt);
+      if (!pid.ok()) {
+        ++sum.failed;
+        sum.failed_ids.push_back(r.id);
+        log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id +
+            ": cannot start: " + pid.status().message());
+        continue;
+      }
+      log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": started (logs in " +
+          r.dir + ")");
+      active.push_back({pid.value(), &r});
+    }
+    if (active.empty()) continue;
+    int status = 0;
+    const pid_t done = waitpid(-1, &status, 0);
+    if (done < 0) {
+      if (errno == EINTR) continue;
+      return Status(StatusCode::kInternal, std::string("waitpid: ") + std::strerror(errno));
+    }
+    auto it =
+        std::find_if(active.begin(), active.end(), [&](const Active& a) { return a.pid == done; });
+    if (it == active.end()) continue;  // not ours
+    const SweepRun& r = *it->run;
+    active.erase(it);
+    const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+    const bool exited_ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    auto metrics = read_run_metrics(r.dir + "/metrics.json");
+    std::error_code ec;
+    if (exited_ok && metrics.ok()) {
+      fs::remove(r.dir + "/.running", ec);
+      ++sum.succeeded;
+      char buf[128];
+      std::snprintf(buf, sizeof buf, ": done (%.3f dB, %llu bytes)", metrics->psnr_mean,
+                    static_cast<unsigned long long>(metrics->size_bytes));
+      log(tag + buf);
+    } else {
+      // The .running marker stays, so the next `crpgs sweep` reruns (resumes) it.
+      ++sum.failed;
+      sum.failed_ids.push_back(r.id);
+      log(tag + ": FAILED (" + exit_text(status) +
+          (exited_ok ? ", but " + metrics.status().message() : std::string()) + "); see " + r.dir +
+          "/stderr.log");
+    }
+  }
+  return sum;
+}
+
+Status run_one(const SweepRun& run, const ExecOptions& opt) {
+  CRPGS_ASSIGN_OR_RETURN(SweepSummary s, run_sweep_local({run}, opt));
+  if (s.failed > 0)
+    return Status(StatusCode::kInternal,
+                  "run " + run.id + " failed; see " + run.dir + "/stderr.log");
+  return OkStatus();
+}
+
+std::string slurm_script(const SweepSpec& spec, const std::vector<int>& indices,
+                         const std::string& crpgs_exe, const std::string& sweep_file,
+                         const std::string& runs_dir) {
+  // Indices as ranges: 0-3,5,7-9.
+  std::string array;
+  for (size_t i = 0; i < indices.size();) {
+    size_t j = i;
+    while (j + 1 < indices.size() && indices[j + 1] == indices[j] + 1) ++j;
+    array += (array.empty() ? "" : ",") + std::to_string(indices[i]) +
+             (j > i ? "-" + std::to_string(indices[j]) : "");
+    i = j + 1;
+  }
+  if (spec.resources.max_parallel > 0) array += "%" + std::to_string(spec.resources.max_parallel);
+  std::error_code ec;
+  const std::string cwd = fs::current_path(ec).string();
+  std::string s = "#!/bin/bash\n# Written by `crpgs sweep --slurm` for " + spec.file + "\n";
+  s += "#SBATCH --job-name=crpgs-" + sanitize(spec.name) + "\n";
+  s += "#SBATCH --array=" + array + "\n";
+  s += "#SBATCH --ntasks=1\n";
+  s += "#SBATCH --cpus-per-task=" + std::to_string(spec.resources.cpus) + "\n";
+  if (!spec.resources.mem.empty()) s += "#SBATCH --mem=" + spec.resources.mem + "\n";
+  if (!spec.resources.time.empty()) s += "#SBATCH --time=" + spec.resources.time + "\n";
+  if (!spec.resources.partition.empty())
+    s += "#SBATCH --partition=" + spec.resources.partition + "\n";
+  s += "#SBATCH --output=" + runs_dir + "/slurm/%A_%a.out\n";
+  s += "#SBATCH --chdir=" + cwd + "\n";
+  s += "set -eu\n";
+  s += "exec " + shell_quote(crpgs_exe) + " sweep " + shell_quote(sweep_file) + " -o " +
+       shell_quote(runs_dir) + " --run-index \"$SLURM_ARRAY_TASK_ID\"\n";
+  return s;
+}
+
+StatusOr<std::string> submit_slurm(const SweepSpec& spec, const std::vector<int>& indices,
+                                   const std::string& crpgs_exe, const std::string& sweep_file,
+                                   const std::string& runs_dir) {
+  if (indices.empty()) return Status(StatusCode::kInvalidArgument, "nothing to submit");
+  std::error_code ec;
+  fs::create_directories(runs_dir + "/slurm", ec);
+  const std::string script = runs_dir + "/sweep.sbatch";
+  CRPGS_RETURN_IF_ERROR(
+      write_file_atomic(script, slurm_script(spec, indices, crpgs_exe, sweep_file, runs_dir)));
+  const std::string cmd = "sbatch --parsable " + shell_quote(script) + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return Status(StatusCode::kInternal, "cannot run sbatch");
+  std::string out;
+  char buf[256];
+  while (std::fgets(buf, sizeof buf, p)) out += buf;
+  const int status = pclose(p);
+  while (!out.empty() && (out.back() == '\n' || out.back() == '\r')) out.pop_back();
+  if (status != 0)
+    return Status(StatusCode::kInternal, "sbatch failed (" + exit_text(status) + "): " + out +
+                                             " (script: " + script + ")");
+  return out.substr(0, out.find(';'));  // "jobid[;cluster]"
+}
+
+std::string self_executable() {
+  std::error_code ec;
+  const auto p = fs::read_symlink("/proc/self/exe", ec);
+  return ec ? std::string() : p.string();
+}
+
+}  // namespace crpgs::experiments

@@ -1,0 +1,149 @@
+// `crpgs report` from fixture metrics: tables, BD rows, plots and the self-contained HTML page.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <regex>
+
+#include "crpgs/experiments/report.h"
+#include "crpgs/experiments/run_metrics.h"
+#include "experiments/exp_test_util.h"
+
+namespace crpgs::experiments {
+namespace {
+namespace fs = std::filesystem;
+using test::fresh_dir;
+using test::read_text;
+using test::write_text;
+
+/// A fixture runs directory: on "fern", "hac" and "crpgs" (crpgs at 70% of hac's size for the
+/// same PSNR) with 4 points each, plus "far" whose PSNR range overlaps neither; one unfinished
+/// run.
+std::string make_fixture(const std::string& name) {
+  const std::string runs = fresh_dir(name) + "/runs";
+  const double lambdas[4] = {4e-3, 2e-3, 1e-3, 5e-4};
+  int index = 0;
+  for (const std::string method : {"hac", "crpgs", "far"})
+    for (int i = 0; i < 4; ++i) {
+      RunMetrics m;
+      m.method = method;
+      m.dataset = "fern";
+      m.lambda = lambdas[i];
+      const double hac_size = 5e6 * std::pow(1.6, i);
+      m.size_bytes = static_cast<uint64_t>(method == "crpgs" ? 0.7 * hac_size
+                                           : method == "far" ? 100 * hac_size
+                                                             : hac_size);
+      const double psnr = (method == "far" ? 40.0 : 24.0) + 0.6 * i + 0.05 * i * i;
+      m.views = {{"v0", psnr - 0.1, 0.80, 0.020}, {"v8", psnr + 0.1, 0.82, 0.024}};
+      m.train_seconds = 600 + 100 * i;
+      m.encode_seconds = 2 + 0.5 * i;
+      m.decode_seconds = 1 + 0.25 * i;
+      for (int t = 1; t <= 10; ++t)
+        m.trace.push_back({m.train_seconds * t / 10, 3000 * t, psnr - 8.0 / t});
+      m.peak_memory_bytes = int64_t(2) << 30;
+      const uint64_t s = m.size_bytes;
+      m.breakdown = {s / 10, s / 3,  s / 12, s / 8, s / 40, method == "crpgs" ? s / 50 : 0,
+                     s / 9,  s / 30, 0};
+      uint64_t sum = 0;
+      for (auto v : m.breakdown) sum += v;
+      m.breakdown[8] = s - sum;
+      const std::string dir = runs + "/fern/" + method + "/lambda-" + std::to_string(i);
+      fs::create_directories(dir);
+      EXPECT_TRUE(write_run_metrics(dir + "/metrics.json", m).ok());
+      write_text(dir + "/run.json",
+                 "{\"id\": \"fern/" + method + "/lambda-" + std::to_string(i) +
+                     "\", \"index\": " + std::to_string(index++) + ", \"method\": \"" + method +
+                     "\", \"dataset\": \"fern\", \"rate\": " + std::to_string(lambdas[i]) + "}\n");
+    }
+  fs::create_directories(runs + "/fern/crpgs/unfinished");
+  write_text(runs + "/fern/crpgs/unfinished/run.json", "{\"id\": \"fern/crpgs/unfinished\"}\n");
+  write_text(runs + "/fern/crpgs/unfinished/.running", "started\n");
+  return runs;
+}
+
+TEST(Report, CollectsFinishedRunsInSweepOrder) {
+  const std::string runs = make_fixture("collect");
+  auto c = collect_runs(runs);
+  ASSERT_TRUE(c.ok()) << c.status().message();
+  ASSERT_EQ(c->runs.size(), 12u);
+  EXPECT_EQ(c->runs[0].method, "hac");
+  EXPECT_EQ(c->runs[4].method, "crpgs");
+  EXPECT_DOUBLE_EQ(c->runs[1].rate, 2e-3);
+  ASSERT_EQ(c->unfinished.size(), 1u);
+  EXPECT_EQ(c->unfinished[0], "fern/crpgs/unfinished");
+  EXPECT_FALSE(collect_runs(runs + "/nope").ok());
+}
+
+TEST(Report, TablesHaveRdPointsAndBdRows) {
+  const std::string runs = make_fixture("tables");
+  ReportOptions opt;
+  opt.plots = false;
+  auto out = write_report(runs, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  EXPECT_EQ(out->markdown, runs + "/report/report.md");
+  const std::string md = read_text(out->markdown);
+  EXPECT_NE(md.find("12 finished runs, 1 unfinished (fern/crpgs/unfinished)"), std::string::npos)
+      << md;
+  EXPECT_NE(md.find("## fern"), std::string::npos);
+  // crpgs is the same curve at 0.7x the size: BD-rate exactly -30%.
+  EXPECT_NE(md.find("| hac | crpgs | -30.00 |"), std::string::npos) << md;
+  // "far" never overlaps: no result either way.
+  EXPECT_NE(md.find("| hac | far | — | — |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| crpgs | far | — | — |"), std::string::npos) << md;
+  // One RD row per run, with λ and size in MB.
+  EXPECT_NE(md.find("| hac | 0.004 | 5.0000 |"), std::string::npos) << md;
+  EXPECT_EQ(std::count(md.begin(), md.end(), '\n') > 20, true);
+  EXPECT_EQ(md.find("![rd_"), std::string::npos);  // no plots asked for
+  const std::string html = read_text(out->html);
+  EXPECT_NE(html.find("<td>-30.00</td>"), std::string::npos);
+}
+
+bool is_png(const std::string& bytes) {
+  return bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0;
+}
+
+TEST(Report, RendersAllPlotsAndEmbedsThemInTheHtml) {
+  if (!gnuplot_available()) GTEST_SKIP() << "gnuplot not installed (Debian: gnuplot-nox)";
+  const std::string runs = make_fixture("plots");
+  ReportOptions opt;
+  opt.out_dir = fresh_dir("plots_out");
+  auto out = write_report(runs, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  std::set<std::string> names;
+  for (const auto& p : out->pngs) names.insert(fs::path(p).filename().string());
+  const std::set<std::string> expected = {"rd_fern.png",
+                                          "time_fern.png",
+                                          "cost_fern.png",
+                                          "breakdown_fern_hac.png",
+                                          "breakdown_fern_crpgs.png",
+                                          "breakdown_fern_far.png"};
+  EXPECT_EQ(names, expected);
+  const std::string html = read_text(out->html);
+  const std::string md = read_text(out->markdown);
+  for (const auto& p : out->pngs) {
+    const std::string bytes = read_text(p);
+    EXPECT_TRUE(is_png(bytes)) << p;
+    EXPECT_GT(bytes.size(), 8000u) << p << " looks empty";
+    // Embedded verbatim as a data URI, and linked from the Markdown.
+    EXPECT_NE(html.find("data:image/png;base64," + base64_encode(bytes) + "\""), std::string::npos)
+        << p;
+    EXPECT_NE(md.find("](" + fs::path(p).filename().string() + ")"), std::string::npos);
+  }
+  EXPECT_EQ(html.find("src=\"rd_"), std::string::npos) << "the page must not link files";
+  // No temporary files left next to the outputs.
+  for (const auto& e : fs::directory_iterator(opt.out_dir))
+    EXPECT_TRUE(e.path().extension() == ".png" || e.path().extension() == ".md" ||
+                e.path().extension() == ".html")
+        << e.path();
+}
+
+TEST(Report, Base64) {
+  EXPECT_EQ(base64_encode(""), "");
+  EXPECT_EQ(base64_encode("f"), "Zg==");
+  EXPECT_EQ(base64_encode("fo"), "Zm8=");
+  EXPECT_EQ(base64_encode("foo"), "Zm9v");
+  EXPECT_EQ(base64_encode("foobar"), "Zm9vYmFy");
+  EXPECT_EQ(base64_encode(std::string("\xff\x00\x80", 3)), "/wCA");
+}
+
+}  // namespace
+}  // namespace crpgs::experiments

@@ -1,0 +1,67 @@
+// metrics.json round trip and validation.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "crpgs/experiments/run_metrics.h"
+
+namespace crpgs::experiments {
+namespace {
+
+TEST(RunMetrics, RoundTripsThroughJson) {
+  RunMetrics m;
+  m.method = "crpgs \"quoted\"";
+  m.dataset = "fern";
+  m.lambda = 1e-3;
+  m.config_hash = "00ff00ff00ff00ff";
+  m.size_bytes = 1234567;
+  m.breakdown[static_cast<int>(BitstreamCategory::kGeometry)] = 1000;
+  m.breakdown[static_cast<int>(BitstreamCategory::kMlps)] = 234567;
+  m.views = {{"view_000", 25.5, 0.81, 0.012}, {"view_008", 26.5, 0.83, 0.014}};
+  m.train_seconds = 1800.25;
+  m.encode_seconds = 3.5;
+  m.trace = {{10.5, 100, 18.25}, {20.0, 200, 21.0}};
+  m.peak_memory_bytes = peak_rss_bytes();
+  EXPECT_GT(m.peak_memory_bytes, 0);
+
+  const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/experiments/metrics";
+  std::filesystem::create_directories(dir);
+  ASSERT_TRUE(write_run_metrics(dir + "/metrics.json", m).ok());
+  auto back = read_run_metrics(dir + "/metrics.json");
+  ASSERT_TRUE(back.ok()) << back.status().message();
+  const RunMetrics& r = back.value();
+  EXPECT_EQ(r.method, m.method);
+  EXPECT_EQ(r.dataset, "fern");
+  EXPECT_DOUBLE_EQ(r.lambda, 1e-3);
+  EXPECT_EQ(r.size_bytes, 1234567u);
+  EXPECT_EQ(r.breakdown, m.breakdown);
+  ASSERT_EQ(r.views.size(), 2u);
+  EXPECT_EQ(r.views[1].name, "view_008");
+  EXPECT_DOUBLE_EQ(r.psnr_mean, 26.0);  // filled from the views
+  EXPECT_DOUBLE_EQ(r.ssim_mean, 0.82);
+  EXPECT_DOUBLE_EQ(r.render_seconds_per_view, 0.013);
+  EXPECT_DOUBLE_EQ(r.train_seconds, 1800.25);
+  EXPECT_TRUE(std::isnan(r.decode_seconds));  // not measured stays NaN (null in JSON)
+  ASSERT_EQ(r.trace.size(), 2u);
+  EXPECT_EQ(r.trace[1].iteration, 200);
+  EXPECT_DOUBLE_EQ(r.trace[0].seconds, 10.5);
+  EXPECT_EQ(r.peak_memory_bytes, m.peak_memory_bytes);
+}
+
+TEST(RunMetrics, RejectsIncompleteDocuments) {
+  EXPECT_FALSE(run_metrics_from_json("{\"size_bytes\": 10, \"psnr_mean\": 30}").ok());  // no format
+  EXPECT_FALSE(
+      run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"psnr_mean\": 30}").ok());
+  EXPECT_FALSE(
+      run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10}").ok());
+  EXPECT_FALSE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
+                                     "\"psnr_mean\": 30, \"trace\": [[1, 2]]}")
+                   .ok());
+  EXPECT_FALSE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", ").ok());  // truncated
+  EXPECT_TRUE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
+                                    "\"psnr_mean\": 30}")
+                  .ok());
+}
+
+}  // namespace
+}  // namespace crpgs::experiments

@@ -1,0 +1,294 @@
+// Sweep files: expansion, run preparation, local execution with a fake runner, resume after a
+// crashed run and after the whole sweep was killed, and the Slurm script.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "crpgs/config.h"
+#include "crpgs/experiments/run_metrics.h"
+#include "crpgs/experiments/sweep.h"
+#include "experiments/exp_test_util.h"
+
+namespace crpgs::experiments {
+namespace {
+namespace fs = std::filesystem;
+using test::fresh_dir;
+using test::read_text;
+using test::write_text;
+
+/// Two base configs, a 3 x 2 grid and two datasets.
+std::string sweep_yaml(const std::string& dir, const std::string& extra = "") {
+  write_text(dir + "/a.yaml", "tag: a\nentropy: {lambda: 0.5}\nmodel: {sfa: 1.0}\n");
+  write_text(dir + "/b.yaml", "tag: b\nentropy: {lambda: 0.5}\nmodel: {sfa: 1.0}\n");
+  return "name: test_sweep\n"
+         "output: " +
+         dir +
+         "/runs\n"
+         "configs:\n"
+         "  - " +
+         dir +
+         "/a.yaml\n"
+         "  - {name: bee, path: " +
+         dir +
+         "/b.yaml, set: {model.extra: 7}}\n"
+         "overrides:\n"
+         "  entropy.lambda: [1.0e-4, 1.0e-3, 4.0e-3]\n"
+         "  model.sfa: [0.5, 1]\n"
+         "datasets:\n"
+         "  - {name: fern, set: {dataset.path: /data/fern, dataset.format: llff}}\n"
+         "  - {name: lego, set: {dataset.path: /data/lego}}\n"
+         "resources: {cpus: 2, mem: 4G, time: \"01:00:00\", partition: debug}\n"
+         "workers: 3\n" +
+         extra;
+}
+
+TEST(Sweep, ParsesAndExpandsDeterministically) {
+  const std::string dir = fresh_dir("expand");
+  auto spec = parse_sweep(sweep_yaml(dir), "sweep.yaml");
+  ASSERT_TRUE(spec.ok()) << spec.status().message();
+  EXPECT_EQ(spec->name, "test_sweep");
+  EXPECT_EQ(spec->rate_key, "entropy.lambda");  // found by name
+  EXPECT_EQ(spec->workers, 3);
+  EXPECT_EQ(spec->resources.mem, "4G");
+  ASSERT_EQ(spec->configs.size(), 2u);
+  EXPECT_EQ(spec->configs[0].name, "a");
+
+  const auto runs = expand_sweep(spec.value());
+  ASSERT_EQ(runs.size(), 2u * 2u * 3u * 2u);
+  std::set<std::string> ids;
+  for (size_t i = 0; i < runs.size(); ++i) {
+    EXPECT_EQ(runs[i].index, static_cast<int>(i));
+    ids.insert(runs[i].id);
+    EXPECT_EQ(runs[i].dir, dir + "/runs/" + runs[i].id);
+  }
+  EXPECT_EQ(ids.size(), runs.size()) << "run ids must be unique";
+  // Datasets outermost, then configs, then the grid with its first key slowest.
+  EXPECT_EQ(runs[0].id, "fern/a/lambda-1.0e-4_sfa-0.5");
+  EXPECT_EQ(runs[1].id, "fern/a/lambda-1.0e-4_sfa-1");
+  EXPECT_EQ(runs[2].id, "fern/a/lambda-1.0e-3_sfa-0.5");
+  EXPECT_EQ(runs[6].id, "fern/bee/lambda-1.0e-4_sfa-0.5");
+  EXPECT_EQ(runs[12].dataset, "lego");
+  // The rate key moves along a curve; other grid keys make separate methods.
+  EXPECT_EQ(runs[0].method, "a sfa=0.5");
+  EXPECT_EQ(runs[1].method, "a sfa=1");
+  EXPECT_DOUBLE_EQ(runs[2].rate, 1e-3);
+  // Overrides in order: config set, dataset set, grid.
+  const auto& o = runs[6].overrides;
+  ASSERT_EQ(o.size(), 5u);
+  EXPECT_EQ(o[0], (std::pair<std::string, std::string>{"model.extra", "7"}));
+  EXPECT_EQ(o[1].first, "dataset.path");
+  EXPECT_EQ(o[4], (std::pair<std::string, std::string>{"model.sfa", "0.5"}));
+
+  const auto again = expand_sweep(parse_sweep(sweep_yaml(dir), "sweep.yaml").value());
+  for (size_t i = 0; i < runs.size(); ++i) EXPECT_EQ(again[i].id, runs[i].id);
+  // Another runs directory only moves the dirs.
+  EXPECT_EQ(expand_sweep(spec.value(), "/elsewhere")[5].dir, "/elsewhere/" + runs[5].id);
+}
+
+TEST(Sweep, RejectsBadFiles) {
+  EXPECT_FALSE(parse_sweep("configs: []\n", "s.yaml").ok());
+  EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml").ok());
+  EXPECT_FALSE(parse_sweep("configs: [x/a.yaml, y/a.yaml]\n", "s.yaml").ok());  // same name
+  EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nworkers: 0\n", "s.yaml").ok());
+  EXPECT_FALSE(parse_sweep("configs: [a.yaml]\ndatasets: [{set: {}}]\n", "s.yaml").ok());
+  auto st = parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml");
+  EXPECT_NE(st.status().message().find("bogus"), std::string::npos);
+  // No grid: one run per config and dataset, named "base".
+  auto one = parse_sweep("configs: [a.yaml]\n", "dir/s.yaml");
+  ASSERT_TRUE(one.ok());
+  EXPECT_EQ(one->output, "runs/s");
+  const auto runs = expand_sweep(one.value());
+  ASSERT_EQ(runs.size(), 1u);
+  EXPECT_EQ(runs[0].id, "default/a/base");
+}
+
+TEST(Sweep, PrepareRunWritesConfigAndRunJson) {
+  const std::string dir = fresh_dir("prepare");
+  const auto runs = expand_sweep(parse_sweep(sweep_yaml(dir), "s.yaml").value());
+  const SweepRun& r = runs[7];  // fern/bee/lambda-1.0e-4_sfa-1
+  ASSERT_TRUE(prepare_run(r, nullptr).ok());
+  auto cfg = Config::load_file(r.dir + "/config.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().message();
+  EXPECT_DOUBLE_EQ(cfg->root()["entropy"]["lambda"].as<double>(), 1e-4);
+  EXPECT_EQ(cfg->root()["model"]["sfa"].as<int>(), 1);
+  EXPECT_EQ(cfg->root()["model"]["extra"].as<int>(), 7);
+  EXPECT_EQ(cfg->root()["dataset"]["path"].as<std::string>(), "/data/fern");
+  EXPECT_EQ(cfg->root()["tag"].as<std::string>(), "b");
+  const std::string info = read_text(r.dir + "/run.json");
+  EXPECT_NE(info.find("\"method\": \"bee sfa=1\""), std::string::npos) << info;
+  EXPECT_NE(info.find("\"rate\": 0.0001"), std::string::npos) << info;
+  EXPECT_EQ(run_state(r.dir), RunState::kPending);
+}
+
+struct LocalSweep {
+  std::string dir, runner, log;
+  std::vector<SweepRun> runs;
+  ExecOptions opt;
+  std::vector<std::string> lines;
+
+  explicit LocalSweep(const std::string& name) {
+    dir = fresh_dir(name);
+    runner = test::write_fake_runner(dir);
+    log = dir + "/calls.log";
+    // Smaller: one dataset, 2 configs x 3 lambdas.
+    const std::string yaml = "output: " + dir + "/runs\nconfigs: [" + dir + "/a.yaml, " + dir +
+                             "/b.yaml]\noverrides: {entropy.lambda: [1.0e-4, 1.0e-3, 4.0e-3]}\n"
+                             "datasets: [{name: fern}]\n";
+    write_text(dir + "/a.yaml", "tag: a\nentropy:\n  lambda: 0.5\n");
+    write_text(dir + "/b.yaml", "tag: b\nentropy:\n  lambda: 0.5\n");
+    runs = expand_sweep(parse_sweep(yaml, "s.yaml").value());
+    opt.runner = runner;
+    opt.workers = 2;
+    opt.log = [this](const std::string& s) { lines.push_back(s); };
+    setenv("FAKE_LOG", log.c_str(), 1);
+    unsetenv("FAKE_CRASH");
+    unsetenv("FAKE_HANG");
+  }
+  ~LocalSweep() {
+    unsetenv("FAKE_LOG");
+    unsetenv("FAKE_CRASH");
+    unsetenv("FAKE_HANG");
+  }
+  /// Lines of the fake runner's call log.
+  std::vector<std::string> calls() const {
+    std::vector<std::string> out;
+    std::istringstream in(read_text(log));
+    for (std::string l; std::getline(in, l);) out.push_back(l);
+    return out;
+  }
+};
+
+TEST(Sweep, LocalRunSkipsFinishedRunsAndRerunsACrashedOne) {
+  LocalSweep s("local");
+  setenv("FAKE_CRASH", "fern/b/lambda-1.0e-3", 1);
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->total, 6);
+  EXPECT_EQ(sum->succeeded, 5);
+  EXPECT_EQ(sum->failed, 1);
+  ASSERT_EQ(sum->failed_ids.size(), 1u);
+  EXPECT_EQ(sum->failed_ids[0], "fern/b/lambda-1.0e-3");
+  EXPECT_EQ(s.calls().size(), 6u);
+  const SweepRun& crashed = s.runs[4];
+  ASSERT_EQ(crashed.id, "fern/b/lambda-1.0e-3");
+  EXPECT_EQ(run_state(crashed.dir), RunState::kInterrupted);
+  EXPECT_NE(read_text(crashed.dir + "/stderr.log").find("fake crash"), std::string::npos);
+  for (const auto& r : s.runs) {
+    EXPECT_TRUE(fs::exists(r.dir + "/config.yaml")) << r.id;
+    EXPECT_TRUE(fs::exists(r.dir + "/stdout.log")) << r.id;
+    if (&r != &crashed) {
+      EXPECT_EQ(run_state(r.dir), RunState::kComplete) << r.id;
+    }
+  }
+
+  // Second pass: only the crashed run runs again, resuming from its checkpoint.
+  auto again = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->skipped, 5);
+  EXPECT_EQ(again->succeeded, 1);
+  EXPECT_EQ(again->failed, 0);
+  const auto calls = s.calls();
+  ASSERT_EQ(calls.size(), 7u);
+  EXPECT_EQ(calls.back(), crashed.dir + " --resume");
+  for (const auto& r : s.runs) EXPECT_EQ(run_state(r.dir), RunState::kComplete) << r.id;
+
+  // Third pass: nothing to do.
+  auto third = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(third.ok());
+  EXPECT_EQ(third->skipped, 6);
+  EXPECT_EQ(s.calls().size(), 7u);
+}
+
+TEST(Sweep, ResumesAfterTheSweepItselfWasKilled) {
+  LocalSweep s("killed");
+  const SweepRun& hung = s.runs[2];  // fern/a/lambda-4.0e-3
+  setenv("FAKE_HANG", hung.id.c_str(), 1);
+  s.opt.workers = 1;  // runs 0 and 1 finish before run 2 hangs; 3..5 never start
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    setpgid(0, 0);  // its own process group, so the kill below takes the runner too
+    auto sum = run_sweep_local(s.runs, s.opt);
+    _exit(sum.ok() ? 0 : 1);
+  }
+  setpgid(child, child);
+  // Wait (bounded) for the hanging run to start, then kill the sweep and its runner.
+  for (int i = 0; i < 600 && !fs::exists(hung.dir + "/hang_started"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  ASSERT_TRUE(fs::exists(hung.dir + "/hang_started")) << "the fake runner never started";
+  kill(-child, SIGKILL);
+  int status = 0;
+  waitpid(child, &status, 0);
+  EXPECT_TRUE(WIFSIGNALED(status));
+
+  EXPECT_EQ(run_state(s.runs[0].dir), RunState::kComplete);
+  EXPECT_EQ(run_state(s.runs[1].dir), RunState::kComplete);
+  EXPECT_EQ(run_state(hung.dir), RunState::kInterrupted);  // the .running marker is left
+  EXPECT_EQ(run_state(s.runs[3].dir), RunState::kPending);
+  ASSERT_EQ(s.calls().size(), 3u);
+
+  unsetenv("FAKE_HANG");
+  s.opt.workers = 2;
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(sum.ok());
+  EXPECT_EQ(sum->skipped, 2);
+  EXPECT_EQ(sum->succeeded, 4);
+  const auto calls = s.calls();
+  ASSERT_EQ(calls.size(), 7u);
+  std::multiset<std::string> rerun(calls.begin() + 3, calls.end());
+  EXPECT_EQ(rerun.count(hung.dir + " --resume"), 1u);  // resumed from its checkpoint
+  EXPECT_EQ(rerun.count(s.runs[0].dir), 0u);           // finished runs are not rerun
+  EXPECT_EQ(rerun.count(s.runs[1].dir), 0u);
+  for (const auto& r : s.runs) EXPECT_EQ(run_state(r.dir), RunState::kComplete) << r.id;
+}
+
+TEST(Sweep, DryRunStartsNothing) {
+  LocalSweep s("dry");
+  s.opt.dry_run = true;
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(sum.ok());
+  EXPECT_EQ(sum->total, 6);
+  EXPECT_EQ(sum->succeeded, 0);
+  EXPECT_FALSE(fs::exists(s.log));
+  EXPECT_FALSE(fs::exists(s.runs[0].dir));
+  EXPECT_EQ(s.lines.size(), 6u);
+}
+
+TEST(Sweep, RunOneRunsASingleRun) {
+  LocalSweep s("one");
+  ASSERT_TRUE(run_one(s.runs[3], s.opt).ok());
+  EXPECT_EQ(run_state(s.runs[3].dir), RunState::kComplete);
+  EXPECT_EQ(run_state(s.runs[2].dir), RunState::kPending);
+  ASSERT_TRUE(run_one(s.runs[3], s.opt).ok());  // already complete: not run again
+  EXPECT_EQ(s.calls().size(), 1u);
+  setenv("FAKE_CRASH", s.runs[1].id.c_str(), 1);
+  EXPECT_FALSE(run_one(s.runs[1], s.opt).ok());
+}
+
+TEST(Sweep, SlurmScriptHasArrayAndResources) {
+  const std::string dir = fresh_dir("slurm_script");
+  auto spec = parse_sweep(sweep_yaml(dir, ""), "s.yaml");
+  ASSERT_TRUE(spec.ok());
+  spec->resources.max_parallel = 4;
+  const std::string s =
+      slurm_script(spec.value(), {0, 1, 2, 3, 5, 7, 8}, "/opt/crpgs", "/x/s.yaml", "/x/runs");
+  EXPECT_EQ(s.rfind("#!/bin/bash\n", 0), 0u);
+  EXPECT_NE(s.find("#SBATCH --array=0-3,5,7-8%4\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --cpus-per-task=2\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --mem=4G\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --time=01:00:00\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --partition=debug\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("'/opt/crpgs' sweep '/x/s.yaml' -o '/x/runs' --run-index "
+                   "\"$SLURM_ARRAY_TASK_ID\""),
+            std::string::npos)
+      << s;
+}
+
+}  // namespace
+}  // namespace crpgs::experiments
