@@ -215,6 +215,27 @@ TEST(RangeCoder, RefusesBadArguments) {
   EXPECT_EQ(decode_symbols(enc.value(), {0, 5}, set).status().code(), StatusCode::kInvalidArgument);
 }
 
+TEST(RangeCoder, PlainStreamMustBeConsumedExactly) {
+  const CdfTableSet set = make_set({gaussian_table(3.0)});
+  std::vector<int32_t> sym(5000);
+  for (size_t i = 0; i < sym.size(); ++i) sym[i] = int32_t(i % 9) - 4;
+  const std::vector<uint32_t> idx(sym.size(), 0);
+  auto enc = encode_symbols(sym, idx, set);
+  ASSERT_TRUE(enc.ok());
+  Bytes longer = enc.value();
+  longer.insert(longer.end(), {0, 0, 0, 0});  // one extra word
+  EXPECT_EQ(decode_symbols(longer, idx, set).status().code(), StatusCode::kCorruptBitstream);
+  longer.push_back(0);  // not 8 + 4k bytes
+  EXPECT_EQ(decode_symbols(longer, idx, set).status().code(), StatusCode::kCorruptBitstream);
+  for (size_t len : {size_t(0), size_t(7), enc->size() - 4})
+    EXPECT_EQ(decode_symbols(ByteSpan(enc->data(), len), idx, set).status().code(),
+              StatusCode::kCorruptBitstream)
+        << len;
+  // Fewer symbols than coded leaves words unread.
+  const std::vector<uint32_t> fewer(idx.begin(), idx.end() - 100);
+  EXPECT_FALSE(decode_symbols(enc.value(), fewer, set).ok());
+}
+
 TEST(RangeCoder, EmptySequence) {
   const CdfTableSet set = make_set({gaussian_table(1.0)});
   expect_round_trip({}, {}, set);
