@@ -40,7 +40,7 @@ const char* section_for(crpgs_kind kind) {
 }
 
 StatusOr<std::shared_ptr<Component>> make(crpgs_kind kind, const YAML::Node& block) {
-  const crpgs_create_args args{50, 10, 0, {0, 0, 0, 0, 0}};
+  const crpgs_create_args args{50, 10, 0, 50, {0, 0, 0, 0}};
   switch (kind) {
     case CRPGS_KIND_ENTROPY: {
       auto c = create_component<EntropyModel>(registry(), block, args);

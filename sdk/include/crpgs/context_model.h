@@ -21,9 +21,11 @@ struct LinkInputs {
 
 class ContextModel : public Component {
  public:
-  /// Width of the per-anchor context feature; 0 for a pure link strategy.
+  /// Width of the per-anchor output; 0 for a pure link strategy. For a grid context it is the
+  /// entropy-parameter layout of HAC's mlp_grid, 2*(Dc + 6 + 3K) + 3 (see EntropyParams).
   virtual int64_t output_dim() const { return 0; }
-  /// positions01: [N, 3] in [0,1]. Returns [N, output_dim()].
+  /// positions01: [N, 3] normalised by the scene bounds (values outside [0,1] are allowed: the
+  /// component decides what they read). Returns [N, output_dim()].
   virtual torch::Tensor forward(const torch::Tensor& positions01) {
     return torch::zeros({positions01.size(0), 0}, positions01.options());
   }

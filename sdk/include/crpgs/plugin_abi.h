@@ -35,10 +35,12 @@ typedef struct crpgs_build_info {
 
 /* Host-provided facts a component needs to size itself. */
 typedef struct crpgs_create_args {
-  int32_t feature_dim; /* width of the anchor feature seen by the MLPs (50 in HAC) */
+  int32_t feature_dim; /* width of the anchor feature seen by the MLPs (D_0 = 50 in HAC) */
   int32_t n_offsets;   /* neural Gaussians per anchor (K = 10) */
   int32_t device_cuda; /* 1: tensors live on the CUDA device */
-  int32_t reserved[5];
+  int32_t coded_dim;   /* width of the entropy-coded per-anchor feature (D_i; = feature_dim
+                          without SFA); 0 means feature_dim */
+  int32_t reserved[4];
 } crpgs_create_args;
 
 /* Return codes of create(). */

@@ -49,6 +49,7 @@ crpgs_create_args create_args_for(const Config& resolved) {
   a.n_offsets = model && model["n_offsets"] ? model["n_offsets"].as<int>() : 10;
   const YAML::Node r = resolved.section("rasterizer");
   a.device_cuda = r && r["type"] && r["type"].as<std::string>() == "cuda" ? 1 : 0;
+  a.coded_dim = a.feature_dim;  // the feature model may shrink it (SFA): set after creating it
   return a;
 }
 
