@@ -2,6 +2,7 @@
 #include "cli_common.h"
 
 #include <algorithm>
+#include <filesystem>
 
 namespace crpgs::cli {
 
@@ -16,6 +17,15 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
   StatusOr<Config> cfg = path.empty() ? Config::from_string(fallback_yaml, "<built-in config>")
                                       : Config::load_file(path);
   if (!cfg.ok()) return cfg.status();
+  // A relative dataset path in a config file is relative to that file, so configs work from any
+  // directory and the resolved copy in a run directory stays valid. (--set paths: relative to cwd.)
+  const YAML::Node ds = cfg->root()["dataset"];
+  if (!path.empty() && ds.IsMap() && ds["path"] && ds["path"].IsScalar() &&
+      !ds["path"].Scalar().empty() && std::filesystem::path(ds["path"].Scalar()).is_relative()) {
+    const auto base = std::filesystem::absolute(path).parent_path();
+    const auto abs = (base / ds["path"].Scalar()).lexically_normal().string();
+    CRPGS_RETURN_IF_ERROR(cfg->apply_override("dataset.path=" + abs));
+  }
   for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(cfg->apply_override(s));
   return cfg->resolve(registry);
 }
