@@ -501,9 +501,18 @@ int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor&
     auto& feat = p(i_feat);
     const int64_t D = feat.size(1);
     auto parent_feat = feat.detach().index_select(0, sel.div(K, "floor"));  // [S, D]
-    auto pooled = torch::zeros({uniq.size(0), D})
-                      .scatter_reduce(0, inverse.unsqueeze(1).expand({-1, D}), parent_feat, "amax",
-                                      /*include_self=*/false);
+    // (a plain loop: scatter_reduce is "beta" in libtorch 1.13 and logs a warning)
+    auto pooled = torch::full({uniq.size(0), D}, -std::numeric_limits<float>::infinity());
+    {
+      auto pf = parent_feat.contiguous();
+      auto inv = inverse.contiguous();
+      const float* src = pf.data_ptr<float>();
+      const int64_t* cell = inv.data_ptr<int64_t>();
+      float* dst = pooled.data_ptr<float>();
+      for (int64_t r = 0; r < pf.size(0); ++r)
+        for (int64_t c = 0; c < D; ++c)
+          dst[cell[r] * D + c] = std::max(dst[cell[r] * D + c], src[r * D + c]);
+    }
     append_rows(groups[size_t(i_feat)], pooled.index_select(0, fresh_idx));
     append_rows(groups[size_t(i_offset)], torch::zeros({n_new, K, 3}));
     append_rows(groups[size_t(i_scaling)], torch::full({n_new, 6}, std::log(cur)));
@@ -545,9 +554,11 @@ AdjustReport AnchorModel::adjust_anchors(int check_interval, torch::Generator ge
     m.opacity_accum = m.opacity_accum.index_select(0, keep);
     m.anchor_demon = m.anchor_demon.index_select(0, keep);
     m.anchor = m.anchor.index_select(0, keep);
-    for (auto& g : m.groups)
-      if (g.per_anchor) m.keep_rows(g, keep);
   }
+  // Scaffold-GS replaces the per-anchor parameters on every adjustment, which drops their
+  // gradients for this iteration's step; do the same so results match the reference.
+  for (auto& g : m.groups)
+    if (g.per_anchor) m.keep_rows(g, keep);
   // 4. HAC quirk: after each prune step the base scales are clamped (log space, <= 0.05).
   m.p(m.i_scaling).index({Slice(), Slice(3, 6)}).clamp_max_(0.05);
   return rep;

@@ -5,6 +5,7 @@
 #include "crpgs/scene_generator.h"
 
 #include <torch/types.h>
+#include <Eigen/Geometry>
 
 #include <cmath>
 #include <cstdio>

@@ -230,11 +230,11 @@ Status Trainer::load_checkpoint(const std::string& path) {
       state[kv.first] = t;
     }
     CRPGS_RETURN_IF_ERROR(model_->load_state_dict(state));
-    torch::Tensor t;
-    ar.read("iteration", t);
-    iteration_ = int(t.item<int64_t>());
-    ar.read("rng", t);
-    gen_.set_state(t);
+    torch::Tensor it, rng;  // read() into a defined tensor would resize it in place
+    ar.read("iteration", it);
+    iteration_ = int(it.item<int64_t>());
+    ar.read("rng", rng);
+    gen_.set_state(rng);
   } catch (const std::exception& e) {
     return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + path + ": " + e.what());
   }

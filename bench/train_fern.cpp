@@ -1,0 +1,106 @@
+// Training speed on fern (COLMAP binary, images_8 = 504x378): iterations per second and the
+// split of one iteration between MLPs (generation), rasterizer, loss, backward and optimizer.
+// Results: bench/results/train_fern.md.
+//
+// Env: CRPGS_BENCH_WARMUP (iterations before timing, default 600: past the start of anchor
+// growing, so the anchor count is representative), CRPGS_BENCH_VOXEL (default 0.01).
+#include <benchmark/benchmark.h>
+#include <torch/torch.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <thread>
+
+#include "crpgs/components.h"
+#include "crpgs/trainer.h"
+#include "raster/cpu_rasterizer.h"
+
+namespace {
+
+using namespace crpgs;
+
+double env_or(const char* name, double fallback) {
+  const char* v = std::getenv(name);
+  return v ? std::atof(v) : fallback;
+}
+
+std::unique_ptr<Trainer> make_fern_trainer(benchmark::State& state) {
+  const std::string path = std::string(CRPGS_SHARED_DATA_DIR) + "/fern";
+  if (!std::filesystem::exists(path)) {
+    state.SkipWithError("fern dataset not found under CRPGS_SHARED_DATA_DIR");
+    return nullptr;
+  }
+  DatasetOptions d;
+  d.path = path;
+  d.format = "colmap";
+  d.images = "images_8";
+  auto ds = load_dataset(d);
+  if (!ds.ok()) {
+    state.SkipWithError(ds.status().to_string().c_str());
+    return nullptr;
+  }
+  TrainOptions to;  // full schedule
+  AnchorModelOptions mo;
+  mo.voxel_size = env_or("CRPGS_BENCH_VOXEL", 0.01);
+  crpgs_create_args args{};
+  args.feature_dim = 50;
+  args.n_offsets = 10;
+  YAML::Node block;
+  block["type"] = "identity";
+  auto features = create_component<FeatureModel>(builtin_registry(), block, args);
+  auto t = make_trainer(to, mo, std::move(ds).value(), std::make_shared<raster::CpuRasterizer>(0),
+                        features.value());
+  if (!t.ok()) {
+    state.SkipWithError(t.status().to_string().c_str());
+    return nullptr;
+  }
+  return std::move(t).value();
+}
+
+void BM_TrainFern(benchmark::State& state) {
+  at::set_num_threads(int(std::thread::hardware_concurrency()));
+  auto t = make_fern_trainer(state);
+  if (!t) return;
+  const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));
+  for (int i = 0; i < warmup; ++i) (void)t->step();
+  const StepTimes before = t->times();
+  for (auto _ : state) {
+    auto loss = t->step();
+    benchmark::DoNotOptimize(loss);
+  }
+  const StepTimes& after = t->times();
+  const double n = after.iterations - before.iterations;
+  state.counters["anchors"] = double(t->model().num_anchors());
+  state.counters["gaussians"] = double(t->last_gaussian_count());
+  state.counters["ms_mlp_fwd"] = 1e3 * (after.generate - before.generate) / n;
+  state.counters["ms_raster_fwd"] = 1e3 * (after.render - before.render) / n;
+  state.counters["ms_loss_fwd"] = 1e3 * (after.loss - before.loss) / n;
+  state.counters["ms_backward"] = 1e3 * (after.backward - before.backward) / n;
+  state.counters["ms_optimizer"] = 1e3 * (after.optimizer - before.optimizer) / n;
+  state.counters["it_per_s"] =
+      benchmark::Counter(double(state.iterations()), benchmark::Counter::kIsRate);
+  // Backward split: the rasterizer's backward alone on the current Gaussians (detached leaves).
+  const View& v = t->dataset().train.front();
+  RenderSettings rs;
+  auto g = t->model().generate(v.camera, 0, t->rasterizer(), rs, false);
+  GaussianBatch b;
+  b.means = g.batch.means.detach().requires_grad_(true);
+  b.scales = g.batch.scales.detach().requires_grad_(true);
+  b.rotations = g.batch.rotations.detach().requires_grad_(true);
+  b.opacities = g.batch.opacities.detach().requires_grad_(true);
+  b.colors = g.batch.colors.detach().requires_grad_(true);
+  double bwd = 0;
+  for (int i = 0; i < 5; ++i) {
+    auto img = t->rasterizer().render(b, v.camera, rs).image;
+    auto t0 = std::chrono::steady_clock::now();
+    img.sum().backward();
+    bwd += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  state.counters["ms_raster_bwd"] = 1e3 * bwd / 5;
+}
+BENCHMARK(BM_TrainFern)->Unit(benchmark::kMillisecond)->Iterations(100);
+
+}  // namespace
+
+BENCHMARK_MAIN();

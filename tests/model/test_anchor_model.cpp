@@ -1,0 +1,251 @@
+// Anchor model: initialisation, effects that are off, growing/pruning invariants.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <ATen/CPUGeneratorImpl.h>
+
+#include "crpgs/anchor_model.h"
+#include "crpgs/components.h"
+#include "crpgs/scene_generator.h"
+#include "raster/cpu_rasterizer.h"
+
+namespace crpgs {
+namespace {
+
+std::shared_ptr<FeatureModel> identity_features(int dim) {
+  crpgs_create_args args{};
+  args.feature_dim = dim;
+  args.n_offsets = 10;
+  YAML::Node block;
+  block["type"] = "identity";
+  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
+  if (!f.ok()) throw StatusError(f.status());
+  return f.value();
+}
+
+struct SmallScene {
+  Dataset ds;
+  std::shared_ptr<Rasterizer> raster = std::make_shared<raster::CpuRasterizer>(0);
+  SmallScene() {
+    SyntheticSceneOptions o;
+    o.width = 48;
+    o.height = 36;
+    o.views = 8;
+    o.sfm_points = 1500;
+    auto s = generate_scene(o, *raster);
+    if (!s.ok()) throw StatusError(s.status());
+    ds = std::move(s).value();
+  }
+  AnchorInit init() const {
+    AnchorInit in;
+    for (const auto& p : ds.points) in.points.push_back({p.x(), p.y(), p.z()});
+    for (const auto& v : ds.train) in.train_cameras.push_back(v.camera);
+    return in;
+  }
+};
+
+AnchorModelOptions small_options() {
+  AnchorModelOptions o;
+  o.voxel_size = 0.1;
+  return o;
+}
+
+std::unique_ptr<AnchorModel> make_model(const SmallScene& s, const AnchorModelOptions& o,
+                                        uint64_t seed = 3) {
+  auto m = AnchorModel::create(o, identity_features(50), s.init(),
+                               at::make_generator<at::CPUGeneratorImpl>(seed));
+  if (!m.ok()) throw StatusError(m.status());
+  return std::move(m).value();
+}
+
+// Runs `n` render/backward/statistics/Adam iterations over the training views.
+void accumulate(AnchorModel& m, SmallScene& s, int n, double zoom = 1.0) {
+  RenderSettings rs;
+  for (int i = 0; i < n; ++i) {
+    const View& v = s.ds.train[size_t(i) % s.ds.train.size()];
+    Camera cam = v.camera;
+    cam.fx *= zoom;  // a narrower view sees only part of the anchors
+    cam.fy *= zoom;
+    auto g = m.generate(cam, int(i % s.ds.train.size()), *s.raster, rs, true);
+    auto out = s.raster->render(g.batch, cam, rs);
+    auto gt = torch::from_blob(const_cast<float*>(v.image.pixels.data()),
+                               {v.image.height, v.image.width, 3});
+    (out.image - gt).abs().mean().backward();
+    m.accumulate_statistics(g, out, cam);
+    m.optimizer_step();
+  }
+}
+
+TEST(MeanSqDist3nn, MatchesBruteForce) {
+  auto pts = torch::rand({700, 3}) * torch::tensor({4.f, 2.f, 0.05f});  // nearly planar
+  auto fast = mean_sq_dist_3nn(pts);
+  auto d2 = (pts.unsqueeze(1) - pts.unsqueeze(0)).pow(2).sum(-1);  // exact, unlike cdist
+  d2.fill_diagonal_(std::numeric_limits<float>::infinity());
+  auto brute = std::get<0>(d2.topk(3, 1, /*largest=*/false)).mean(1).clamp_min(1e-7);
+  EXPECT_TRUE(torch::allclose(fast, brute, 1e-4, 1e-7))
+      << "max abs diff " << (fast - brute).abs().max().item<float>();
+}
+
+TEST(AnchorModel, InitVoxelisesPointsWithoutDuplicates) {
+  SmallScene s;
+  auto m = make_model(s, small_options());
+  auto a = m->anchors();
+  ASSERT_GT(a.size(0), 100);
+  auto cells = torch::round(a / 0.1);
+  EXPECT_TRUE(torch::allclose(cells * 0.1, a, 0, 1e-5)) << "anchors must lie on the voxel grid";
+  EXPECT_EQ(std::get<0>(at::unique_dim(cells, 0)).size(0), a.size(0));
+  // scaling = log(sqrt(mean sq 3-NN distance)), same in all 6 components.
+  auto expect = torch::log(torch::sqrt(mean_sq_dist_3nn(a)));
+  EXPECT_TRUE(torch::allclose(m->scaling_raw().select(1, 0), expect, 1e-5, 1e-6));
+  EXPECT_TRUE(torch::equal(m->scaling_raw().select(1, 5), m->scaling_raw().select(1, 0)));
+  EXPECT_EQ(m->offsets().sizes(), (std::vector<int64_t>{a.size(0), 10, 3}));
+  EXPECT_EQ(m->mask_logits().sizes(), (std::vector<int64_t>{a.size(0), 10}));
+  EXPECT_EQ(m->features().abs().sum().item<float>(), 0.f);
+}
+
+TEST(AnchorModel, RandomInitWithoutPoints) {
+  SmallScene s;
+  s.ds.points.clear();
+  auto o = small_options();
+  o.random_init_points = 500;
+  auto m = make_model(s, o);
+  EXPECT_GT(m->num_anchors(), 100);
+  EXPECT_LE(m->num_anchors(), 500);
+}
+
+// Guards against computing (and paying for) effects the scene did not ask for.
+TEST(AnchorModel, EffectsThatAreOffAreNotComputed) {
+  SmallScene s;
+  RenderSettings rs;
+  const Camera& cam = s.ds.train[0].camera;
+  {
+    auto m = make_model(s, small_options());  // HAC defaults: dir + dist
+    EXPECT_EQ(m->mlp_input_dim(), 54);
+    EXPECT_EQ(m->color_input_dim(), 54);
+    for (const auto& p : m->named_parameters()) EXPECT_NE(p.first, "appearance");
+    EXPECT_EQ(m->generate(cam, 0, *s.raster, rs, false).input.size(1), 54);
+  }
+  {
+    auto o = small_options();
+    o.effects.view_dependent = false;
+    o.effects.distance_input = false;
+    auto m = make_model(s, o);
+    EXPECT_EQ(m->mlp_input_dim(), 50);
+    EXPECT_EQ(m->color_input_dim(), 50);
+    EXPECT_EQ(m->generate(cam, 0, *s.raster, rs, false).input.size(1), 50);
+  }
+  {
+    auto o = small_options();
+    o.effects.view_dependent = false;
+    o.effects.appearance_dim = 8;
+    auto m = make_model(s, o);
+    EXPECT_EQ(m->mlp_input_dim(), 51);
+    EXPECT_EQ(m->color_input_dim(), 59);
+    bool has_app = false;
+    for (const auto& p : m->named_parameters())
+      if (p.first == "appearance") {
+        has_app = true;
+        EXPECT_EQ(p.second.sizes(), (std::vector<int64_t>{int64_t(s.ds.train.size()), 8}));
+      }
+    EXPECT_TRUE(has_app);
+  }
+}
+
+TEST(AnchorModel, GeneratedGaussiansFollowTheFormulas) {
+  SmallScene s;
+  auto m = make_model(s, small_options());
+  RenderSettings rs;
+  auto g = m->generate(s.ds.train[0].camera, 0, *s.raster, rs, false);
+  const int64_t G = g.batch.means.size(0);
+  ASSERT_GT(G, 0);
+  EXPECT_EQ(g.selection.sum().item<int64_t>(), G);
+  EXPECT_TRUE((g.batch.opacities > 0).all().item<bool>()) << "only opacity > 0 is spawned";
+  // Offsets are 0 at init, so every Gaussian sits on its anchor.
+  auto anchor_of = g.source.div(10, "floor");
+  EXPECT_TRUE(torch::allclose(g.batch.means, m->anchors().index_select(0, anchor_of)));
+  auto base = torch::exp(m->scaling_raw().index_select(0, anchor_of).slice(1, 3, 6));
+  EXPECT_TRUE((g.batch.scales <= base + 1e-6).all().item<bool>());
+  EXPECT_TRUE(torch::allclose(g.batch.rotations.norm(2, 1), torch::ones({G}), 1e-5, 1e-5));
+}
+
+TEST(AnchorModel, GrowingAddsAnchorsOnFreeCellsOnly) {
+  SmallScene s;
+  auto o = small_options();
+  o.densify_grad_threshold = 0;  // every Gaussian seen often enough is a candidate
+  o.min_opacity = 0;             // no pruning
+  // Cells 4v, 2v, v: with HAC's 16v the coarse cells of this small scene are all occupied.
+  o.voxel_size = 0.05;
+  o.update_init_factor = 4;
+  o.update_hierarchy_factor = 2;
+  auto m = make_model(s, o);
+  accumulate(*m, s, 12);  // offsets moved by Adam, so candidates leave their anchors' cells
+  const int64_t before = m->num_anchors();
+  auto rep = m->adjust_anchors(/*check_interval=*/10, at::make_generator<at::CPUGeneratorImpl>(5));
+  const int64_t N = m->num_anchors();
+  EXPECT_GT(rep.grown, 0);
+  EXPECT_EQ(rep.pruned, 0);
+  EXPECT_EQ(N, before + rep.grown);
+  // No two anchors share a position (new ones sit on cells that held no anchor).
+  EXPECT_EQ(std::get<0>(at::unique_dim(m->anchors(), 0)).size(0), N);
+  auto st = m->state_dict();
+  for (const char* g : {"feature", "offset", "scaling", "mask"}) {
+    EXPECT_EQ(st.at(std::string("param.") + g).size(0), N) << g;
+    EXPECT_EQ(st.at(std::string("adam_m.") + g).sizes(), st.at(std::string("param.") + g).sizes());
+    EXPECT_EQ(st.at(std::string("adam_v.") + g).sizes(), st.at(std::string("param.") + g).sizes());
+    // New rows start with zero moments.
+    EXPECT_EQ(st.at(std::string("adam_m.") + g).slice(0, before).abs().sum().item<float>(), 0.f);
+  }
+  EXPECT_EQ(st.at("stat.offset_denom").size(0), N * 10);
+  EXPECT_EQ(st.at("stat.anchor_demon").size(0), N);
+  // Statistics used by this step were reset.
+  EXPECT_LE(st.at("stat.offset_denom").max().item<float>(), 10 * 0.8 * 0.5);
+  EXPECT_LE(st.at("stat.anchor_demon").max().item<float>(), 10 * 0.8);
+  // New anchors: offsets 0, mask logits 1, scaling = log(cell size) for a level's cell.
+  EXPECT_EQ(m->offsets().slice(0, before).abs().sum().item<float>(), 0.f);
+  EXPECT_TRUE(torch::equal(m->mask_logits().slice(0, before), torch::ones({N - before, 10})));
+}
+
+TEST(AnchorModel, PruningRemovesAnchorsWithAllTheirState) {
+  SmallScene s;
+  auto o = small_options();
+  o.densify_grad_threshold = 1e9;  // no growing
+  o.min_opacity = 1.0;             // every anchor seen often enough is pruned
+  auto m = make_model(s, o);
+  accumulate(*m, s, 10, /*zoom=*/4.0);
+  auto st0 = m->state_dict();
+  auto survivors = (st0.at("stat.anchor_demon") <= 10 * 0.8).nonzero().squeeze(1);
+  ASSERT_GT(survivors.size(0), 0);
+  ASSERT_LT(survivors.size(0), m->num_anchors());
+  auto rep = m->adjust_anchors(10, at::make_generator<at::CPUGeneratorImpl>(5));
+  EXPECT_EQ(rep.grown, 0);
+  EXPECT_EQ(m->num_anchors(), survivors.size(0));
+  auto st = m->state_dict();
+  EXPECT_TRUE(torch::equal(st.at("anchor"), st0.at("anchor").index_select(0, survivors)));
+  for (const char* g : {"feature", "offset", "mask"})
+    for (const char* kind : {"param.", "adam_m.", "adam_v."}) {
+      const std::string k = std::string(kind) + g;
+      EXPECT_TRUE(torch::equal(st.at(k), st0.at(k).index_select(0, survivors))) << k;
+    }
+  EXPECT_TRUE(
+      torch::equal(st.at("adam_m.scaling"), st0.at("adam_m.scaling").index_select(0, survivors)));
+  EXPECT_TRUE(torch::equal(st.at("stat.opacity_accum"),
+                           st0.at("stat.opacity_accum").index_select(0, survivors)));
+  EXPECT_EQ(st.at("stat.offset_denom").size(0), survivors.size(0) * 10);
+  // The HAC clamp of the base scales after pruning.
+  EXPECT_LE(m->scaling_raw().slice(1, 3, 6).max().item<float>(), 0.05f);
+}
+
+TEST(AnchorModel, StateDictRoundTripRestoresEverything) {
+  SmallScene s;
+  auto m = make_model(s, small_options());
+  accumulate(*m, s, 3);
+  auto st = m->state_dict();
+  auto m2 = make_model(s, small_options(), /*seed=*/99);  // different MLP init
+  ASSERT_TRUE(m2->load_state_dict(st).ok());
+  auto st2 = m2->state_dict();
+  ASSERT_EQ(st.size(), st2.size());
+  for (const auto& kv : st) EXPECT_TRUE(torch::equal(kv.second, st2.at(kv.first))) << kv.first;
+}
+
+}  // namespace
+}  // namespace crpgs

@@ -1,0 +1,230 @@
+// Trainer: learning works, resume is bit-identical, stop/save flags, evaluation, config wiring.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "crpgs/components.h"
+#include "crpgs/metrics.h"
+#include "crpgs/scene_generator.h"
+#include "crpgs/trainer.h"
+#include "raster/cpu_rasterizer.h"
+
+namespace crpgs {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::shared_ptr<FeatureModel> identity_features() {
+  crpgs_create_args args{};
+  args.feature_dim = 50;
+  args.n_offsets = 10;
+  YAML::Node block;
+  block["type"] = "identity";
+  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
+  if (!f.ok()) throw StatusError(f.status());
+  return f.value();
+}
+
+Dataset scene(int w, int h, int views) {
+  raster::CpuRasterizer r(0);
+  SyntheticSceneOptions o;
+  o.width = w;
+  o.height = h;
+  o.views = views;
+  o.sfm_points = 2000;
+  auto s = generate_scene(o, r);
+  if (!s.ok()) throw StatusError(s.status());
+  return std::move(s).value();
+}
+
+std::unique_ptr<Trainer> trainer(const Dataset& ds, const TrainOptions& to) {
+  AnchorModelOptions mo;
+  mo.voxel_size = 0.08;
+  mo.lr.max_steps = to.schedule.iterations;
+  auto t =
+      make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(0), identity_features());
+  if (!t.ok()) throw StatusError(t.status());
+  return std::move(t).value();
+}
+
+std::string tmp_dir(const std::string& name) {
+  auto d = fs::path(CRPGS_TEST_TMP_DIR) / ("train_" + name);
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d.string();
+}
+
+// A short schedule with growing and pruning inside it.
+Schedule tiny_schedule(int iterations) {
+  Schedule s = Schedule::scaled(0.01);  // 300 its: stats after 5, adjust every 1 from 15
+  s.iterations = iterations;
+  s.update_interval = 10;
+  return s;
+}
+
+TEST(Schedule, FastScalesEveryBoundary) {
+  Schedule f = Schedule::scaled(0.1);
+  EXPECT_EQ(f.iterations, 3000);
+  EXPECT_EQ(f.start_stat, 50);
+  EXPECT_EQ(f.update_from, 150);
+  EXPECT_EQ(f.update_interval, 10);
+  EXPECT_EQ(f.update_until, 1500);
+  EXPECT_EQ(f.pause_from, 300);
+  EXPECT_EQ(f.pause_until, 400);
+  EXPECT_EQ(f.rate_start, 1000);
+  EXPECT_EQ(Schedule::full().iterations, 30000);
+}
+
+TEST(Ssim, MatchesTheMetricsLibraryAndIsOneForEqualImages) {
+  auto a = torch::rand({40, 50, 3});
+  auto b = (a + 0.1 * torch::randn({40, 50, 3})).clamp(0, 1);
+  EXPECT_NEAR(tensor_ssim(a, a).item<double>(), 1.0, 1e-5);
+  auto to_image = [](const torch::Tensor& t) {
+    Image im = Image::zeros(int(t.size(1)), int(t.size(0)), 3);
+    auto c = t.contiguous();
+    std::copy(c.data_ptr<float>(), c.data_ptr<float>() + c.numel(), im.pixels.begin());
+    return im;
+  };
+  auto ref = ssim(to_image(a), to_image(b));
+  ASSERT_TRUE(ref.ok());
+  EXPECT_NEAR(tensor_ssim(a, b).item<double>(), ref.value(), 1e-4);
+}
+
+// A broken gradient (or a loop that does not learn) stays near the initial PSNR.
+TEST(Trainer, ShortTrainingRaisesTestPsnr) {
+  at::set_num_threads(2);
+  Dataset ds = scene(48, 36, 16);
+  TrainOptions to;
+  to.schedule = Schedule::scaled(0.01);  // 300 iterations
+  to.schedule.update_interval = 10;
+  auto t = trainer(ds, to);
+  auto before = t->evaluate();
+  ASSERT_TRUE(before.ok()) << before.status().to_string();
+  ASSERT_TRUE(t->train().ok());
+  auto after = t->evaluate();
+  ASSERT_TRUE(after.ok());
+  const StepTimes& tm = t->times();
+  std::cout << "test PSNR " << before->mean_psnr << " -> " << after->mean_psnr << " dB, SSIM "
+            << before->mean_ssim << " -> " << after->mean_ssim << "; anchors "
+            << t->model().num_anchors() << "; seconds: generate " << tm.generate << " render "
+            << tm.render << " loss " << tm.loss << " backward " << tm.backward << " optimizer "
+            << tm.optimizer << "\n";
+  EXPECT_GT(after->mean_psnr, before->mean_psnr + 8.0);
+  EXPECT_GT(after->mean_psnr, 20.0);
+  EXPECT_GT(after->mean_ssim, before->mean_ssim);
+}
+
+TEST(Trainer, ResumeEqualsUninterrupted) {
+  at::set_num_threads(2);
+  Dataset ds = scene(40, 30, 10);
+  TrainOptions to;
+  to.schedule = tiny_schedule(40);
+  to.seed = 7;
+  auto full = trainer(ds, to);
+  ASSERT_TRUE(full->train().ok());
+
+  to.output_dir = tmp_dir("resume");
+  auto first = trainer(ds, to);
+  to.schedule.iterations = 40;
+  for (int i = 0; i < 23; ++i) ASSERT_TRUE(first->step().ok());  // stop mid-interval
+  ASSERT_TRUE(first->save_checkpoint(first->checkpoint_path()).ok());
+  auto resumed = trainer(ds, to);
+  ASSERT_TRUE(resumed->load_checkpoint(first->checkpoint_path()).ok());
+  EXPECT_EQ(resumed->iteration(), 23);
+  ASSERT_TRUE(resumed->train().ok());
+
+  EXPECT_EQ(resumed->model().num_anchors(), full->model().num_anchors());
+  EXPECT_TRUE(torch::equal(resumed->model().anchors(), full->model().anchors()));
+  auto a = full->model().state_dict(), b = resumed->model().state_dict();
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+}
+
+struct Recorder : ProgressCallback {
+  std::vector<TrainingProgress> seen;
+  std::vector<std::string> checkpoints;
+  TrainControl* control = nullptr;
+  int stop_at = -1;
+  void on_iteration(const TrainingProgress& p) override {
+    seen.push_back(p);
+    if (control && p.iteration == stop_at) control->stop = true;
+  }
+  void on_checkpoint(int, const std::string& path) override { checkpoints.push_back(path); }
+};
+
+TEST(Trainer, StopFlagSavesACheckpointAndCancels) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(50);
+  to.eval_interval = 4;
+  to.output_dir = tmp_dir("stop");
+  auto t = trainer(ds, to);
+  TrainControl control;
+  Recorder rec;
+  rec.control = &control;
+  rec.stop_at = 9;
+  Status st = t->train(&rec, &control);
+  EXPECT_EQ(st.code(), StatusCode::kCancelled);
+  EXPECT_EQ(t->iteration(), 9);
+  ASSERT_EQ(rec.checkpoints.size(), 1u);
+  EXPECT_TRUE(fs::exists(t->checkpoint_path()));
+  ASSERT_EQ(rec.seen.size(), 9u);
+  EXPECT_TRUE(rec.seen[3].has_test_psnr);
+  EXPECT_FALSE(rec.seen[2].has_test_psnr);
+  EXPECT_GT(rec.seen.back().anchors, 0);
+  EXPECT_GT(rec.seen.back().gaussians, 0);
+  // No temporary files left next to the checkpoint.
+  int files = 0;
+  for (const auto& e : fs::directory_iterator(to.output_dir)) files += e.is_regular_file();
+  EXPECT_EQ(files, 1);
+}
+
+TEST(Trainer, EvaluateWritesPngsAndMetrics) {
+  Dataset ds = scene(32, 24, 9);
+  TrainOptions to;
+  to.schedule = tiny_schedule(5);
+  auto t = trainer(ds, to);
+  ASSERT_TRUE(t->train().ok());
+  const std::string dir = tmp_dir("eval");
+  auto r = t->evaluate(dir);
+  ASSERT_TRUE(r.ok()) << r.status().to_string();
+  ASSERT_EQ(r->views.size(), ds.test.size());
+  EXPECT_TRUE(fs::exists(fs::path(dir) / "00000.png"));
+  EXPECT_TRUE(fs::exists(fs::path(dir) / "00000_gt.png"));
+  EXPECT_TRUE(std::isfinite(r->mean_psnr));
+  EXPECT_GT(r->mean_ssim, -1.0);
+  EXPECT_LE(r->mean_ssim, 1.0);
+}
+
+TEST(Trainer, SetupFromConfigUsesTheSyntheticSceneAndEffects) {
+  auto cfg = Config::from_string(
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 6}\n"
+      "scene: {view_dependent: false, appearance_dim: 4}\n"
+      "train: {schedule: fast, fast_factor: 0.001, threads: 2}\n",
+      "test.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  auto reg = builtin_registry();
+  auto resolved = cfg->resolve(reg);
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  SetupOptions so;
+  so.output_dir = tmp_dir("setup");
+  auto t = setup_training(resolved.value(), reg, so);
+  ASSERT_TRUE(t.ok()) << t.status().to_string();
+  EXPECT_EQ((*t)->options().schedule.iterations, 30);
+  EXPECT_EQ((*t)->model().mlp_input_dim(), 51);
+  EXPECT_EQ((*t)->model().color_input_dim(), 55);
+  EXPECT_EQ((*t)->dataset().test.size(), 1u);
+  ASSERT_TRUE((*t)->train().ok());
+  EXPECT_TRUE(fs::exists((*t)->checkpoint_path()));
+  // Resuming a finished run loads the checkpoint and has nothing left to do.
+  so.resume = true;
+  auto again = setup_training(resolved.value(), reg, so);
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ((*again)->iteration(), 30);
+}
+
+}  // namespace
+}  // namespace crpgs
