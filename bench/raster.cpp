@@ -4,6 +4,7 @@
 // Results are recorded by hand in bench/results/raster.md.
 #include <benchmark/benchmark.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <fstream>
@@ -18,6 +19,7 @@
 #include "crpgs/rasterizer.h"
 #include "raster/cpu_rasterizer.h"
 #include "raster/reference.h"
+#include "raster/stages.h"
 
 namespace {
 
@@ -239,6 +241,61 @@ void BM_ReferenceForwardBackward(benchmark::State& state) {
   }
 }
 
+// Forward stages timed one by one (ms per stage as counters), plus the tile-list length.
+void BM_Stages(benchmark::State& state) {
+  if (!fern().ok) {
+    state.SkipWithError(fern().error.c_str());
+    return;
+  }
+  namespace r = crpgs::raster;
+  const int threads = int(state.range(2));
+  at::set_num_threads(threads);
+  const Camera cam = bench_camera(int(state.range(0)));
+  const GaussianBatch g = make_scene(state.range(1));
+  const crpgs::RenderSettings st;
+  double t_proj = 0, t_isect = 0, t_fwd = 0, t_bwd = 0, t_pbwd = 0;
+  int64_t entries = 0;
+  using clock = std::chrono::steady_clock;
+  auto ms = [](clock::time_point a, clock::time_point b) {
+    return std::chrono::duration<double, std::milli>(b - a).count();
+  };
+  const at::Tensor v_img = at::rand({cam.height, cam.width, 3});
+  for (auto _ : state) {
+    const auto t0 = clock::now();
+    const r::ProjectResult pr =
+        r::project_forward(g.means, g.scales, g.rotations, cam, st, threads);
+    const auto t1 = clock::now();
+    const r::TileIntersections is =
+        r::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, threads);
+    const auto t2 = clock::now();
+    const r::RasterizeResult rr =
+        r::rasterize_forward(pr.means2d, pr.conics, g.opacities, g.colors, pr.depths, is, cam.width,
+                             cam.height, st.background, false, threads);
+    const auto t3 = clock::now();
+    const r::RasterizeGrads rg = r::rasterize_backward(
+        pr.means2d, pr.conics, g.opacities, g.colors, pr.depths, is, rr, cam.width, cam.height,
+        st.background, false, v_img, at::Tensor(), at::Tensor(), threads);
+    const auto t4 = clock::now();
+    const r::ProjectGrads pg = r::project_backward(g.means, g.scales, g.rotations, cam, pr,
+                                                   rg.v_means2d, rg.v_conics, rg.v_depths, threads);
+    const auto t5 = clock::now();
+    benchmark::DoNotOptimize(pg.v_means.data_ptr<float>());
+    t_proj += ms(t0, t1);
+    t_isect += ms(t1, t2);
+    t_fwd += ms(t2, t3);
+    t_bwd += ms(t3, t4);
+    t_pbwd += ms(t4, t5);
+    entries = is.gaussian_ids.numel();
+  }
+  const double n = double(state.iterations());
+  state.counters["project_ms"] = t_proj / n;
+  state.counters["isect_ms"] = t_isect / n;
+  state.counters["raster_fwd_ms"] = t_fwd / n;
+  state.counters["raster_bwd_ms"] = t_bwd / n;
+  state.counters["project_bwd_ms"] = t_pbwd / n;
+  state.counters["tile_entries"] = double(entries);
+}
+
 void sizes(benchmark::internal::Benchmark* b) {
   for (int64_t w : {504, 1008})
     for (int64_t n : {10000, 100000, 300000})
@@ -247,6 +304,7 @@ void sizes(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_Forward)->Apply(sizes)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_ForwardBackward)->Apply(sizes)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Stages)->Apply(sizes)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_ReferenceForwardBackward)
     ->Args({504, 10000, 2})
     ->Unit(benchmark::kMillisecond)
