@@ -22,6 +22,8 @@ int main(int argc, char** argv) {
   add_plugin_commands(app, g);
   add_config_commands(app, g);
   add_train_commands(app, g);
+  add_sweep_commands(app, g);
+  add_report_commands(app, g);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -258,6 +258,14 @@ TEST(Sweep, DryRunStartsNothing) {
   EXPECT_FALSE(fs::exists(s.log));
   EXPECT_FALSE(fs::exists(s.runs[0].dir));
   EXPECT_EQ(s.lines.size(), 6u);
+  EXPECT_EQ(sum->failed, 0);
+  // A broken config is reported, still without running anything.
+  fs::remove(s.runs[4].config_path);
+  auto bad = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(bad.ok());
+  EXPECT_EQ(bad->failed, 3);  // the three runs of b.yaml
+  EXPECT_NE(s.lines.back().find("CONFIG ERROR"), std::string::npos) << s.lines.back();
+  EXPECT_FALSE(fs::exists(s.log));
 }
 
 TEST(Sweep, RunOneRunsASingleRun) {

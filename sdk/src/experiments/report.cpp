@@ -446,6 +446,31 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
           "<h3>BD-rate and BD-PSNR</h3>\n<p>" + html_escape(bd_note) + "</p>\n" + html_table(bd);
     }
 
+    // Between neighbouring points of a curve: what +0.1 dB costs in size and in time.
+    Table cost = {{"method", "from λ", "to λ", "ΔPSNR (dB)", "size per +0.1 dB (KB)",
+                   "train per +0.1 dB (s)", "decode per +0.1 dB (s)",
+                   "render per +0.1 dB (ms/view)"}};
+    for (const auto& method : g.methods) {
+      const auto& runs = g.by_method.at(method);
+      for (size_t i = 1; i < runs.size(); ++i) {
+        const auto &a = runs[i - 1]->metrics, &b = runs[i]->metrics;
+        const double dp = b.psnr_mean - a.psnr_mean;
+        if (!(dp > 0)) continue;  // a dominated step costs without gaining
+        const double k = 0.1 / dp;
+        cost.push_back(
+            {method, rate_text(runs[i - 1]->rate), rate_text(runs[i]->rate), fmt("%+.3f", dp),
+             fmt("%+.1f", k * (double(b.size_bytes) - double(a.size_bytes)) / 1e3),
+             fmt("%+.1f", k * (b.train_seconds - a.train_seconds)),
+             fmt("%+.3f", k * (b.decode_seconds - a.decode_seconds)),
+             fmt("%+.3f", k * 1e3 * (b.render_seconds_per_view - a.render_seconds_per_view))});
+      }
+    }
+    if (cost.size() > 1) {
+      md += "### What each +0.1 dB costs (between neighbouring RD points)\n\n" + md_table(cost);
+      html_body +=
+          "<h3>What each +0.1 dB costs (between neighbouring RD points)</h3>\n" + html_table(cost);
+    }
+
     Table shares = {{"method"}};
     for (int c = 0; c < kNumBitstreamCategories; ++c)
       shares[0].push_back(category_name(static_cast<BitstreamCategory>(c)));

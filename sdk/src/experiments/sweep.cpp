@@ -229,15 +229,18 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
   return runs;
 }
 
-Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
+StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
   CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
   for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
-  if (registry) {
-    auto resolved = cfg.resolve(*registry);
-    if (!resolved.ok())
-      return Status(resolved.status().code(), "run " + run.id + ": " + resolved.status().message());
-    cfg = std::move(resolved).value();
-  }
+  if (!registry) return cfg;
+  auto resolved = cfg.resolve(*registry);
+  if (!resolved.ok())
+    return Status(resolved.status().code(), "run " + run.id + ": " + resolved.status().message());
+  return resolved;
+}
+
+Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, build_run_config(run, registry));
   std::error_code ec;
   fs::create_directories(run.dir, ec);
   if (ec) return Status(StatusCode::kInternal, "cannot create " + run.dir + ": " + ec.message());
@@ -336,8 +339,12 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       ++sum.skipped;
       log(tag + ": done, skipped");
     } else {
-      if (opt.dry_run)
-        log(tag + (st == RunState::kInterrupted ? ": interrupted, would rerun" : ": would run"));
+      if (opt.dry_run) {
+        auto cfg = build_run_config(r, opt.registry);
+        log(tag + (st == RunState::kInterrupted ? ": interrupted, would rerun" : ": would run") +
+            (cfg.ok() ? std::string() : " -- CONFIG ERROR: " + cfg.status().message()));
+        if (!cfg.ok()) ++sum.failed, sum.failed_ids.push_back(r.id);
+      }
       todo.push_back(&r);
     }
   }

@@ -27,11 +27,8 @@
 #include <utility>
 #include <vector>
 
+#include "crpgs/config.h"
 #include "crpgs/status.h"
-
-namespace crpgs {
-class ComponentRegistry;
-}
 
 namespace crpgs::experiments {
 
@@ -85,6 +82,9 @@ struct SweepRun {
 
 /// Datasets x configs x grid, in that nesting order. `runs_dir` empty = spec.output.
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir = "");
+
+/// The run's config: base config + overrides, resolved against `registry` when non-null.
+StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry);
 
 /// Writes RUN/config.yaml (base config + overrides, resolved against `registry` when non-null)
 /// and RUN/run.json (id, method, dataset, rate, overrides), atomically.

@@ -1,0 +1,114 @@
+/// @file cmd_sweep.cpp
+/// @brief `crpgs sweep`: run a sweep file's grid of configs x overrides x datasets, locally with
+/// N workers or as a Slurm job array.
+#include <cstdlib>
+#include <filesystem>
+
+#include "cli_common.h"
+#include "crpgs/experiments/sweep.h"
+
+namespace crpgs::cli {
+namespace {
+namespace fs = std::filesystem;
+namespace ex = crpgs::experiments;
+
+struct SweepArgs {
+  std::string file, out;
+  int jobs = 0;
+  int run_index = -1;
+  bool slurm = false, dry_run = false;
+};
+
+int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
+  auto spec = ex::load_sweep(a.file);
+  if (!spec.ok()) return report_error(spec.status());
+  const std::string runs_dir = a.out.empty() ? spec->output : a.out;
+  const auto runs = ex::expand_sweep(spec.value(), runs_dir);
+  ComponentRegistry registry = load_registry(g);
+
+  ex::ExecOptions opt;
+  opt.workers = a.jobs > 0 ? a.jobs : spec->workers;
+  opt.registry = &registry;
+  opt.dry_run = a.dry_run;
+  // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.
+  const char* runner = std::getenv("CRPGS_SWEEP_RUNNER");
+  opt.runner = runner && *runner ? runner : ex::self_executable();
+
+  if (a.run_index >= 0) {
+    if (a.run_index >= static_cast<int>(runs.size()))
+      return report_error(Status(StatusCode::kInvalidArgument,
+                                 "--run-index " + std::to_string(a.run_index) + ": the sweep has " +
+                                     std::to_string(runs.size()) + " runs"));
+    Status st = ex::run_one(runs[static_cast<size_t>(a.run_index)], opt);
+    return st.ok() ? 0 : report_error(st);
+  }
+
+  std::printf("sweep %s: %zu runs in %s\n", spec->name.c_str(), runs.size(), runs_dir.c_str());
+  if (a.slurm) {
+    std::vector<int> pending;
+    for (const auto& r : runs) {
+      if (ex::run_state(r.dir) == ex::RunState::kComplete) continue;
+      // Write (and validate) every config now rather than in the array tasks.
+      Status st =
+          a.dry_run ? ex::build_run_config(r, &registry).status() : ex::prepare_run(r, &registry);
+      if (!st.ok()) return report_error(st);
+      pending.push_back(r.index);
+    }
+    std::printf("%zu finished, %zu to submit\n", runs.size() - pending.size(), pending.size());
+    if (pending.empty()) return 0;
+    const std::string exe = ex::self_executable();
+    const std::string sweep_abs = fs::absolute(a.file).string();
+    const std::string runs_abs = fs::absolute(runs_dir).string();
+    if (a.dry_run) {
+      std::printf("%s", ex::slurm_script(spec.value(), pending, exe, sweep_abs, runs_abs).c_str());
+      return 0;
+    }
+    auto job = ex::submit_slurm(spec.value(), pending, exe, sweep_abs, runs_abs);
+    if (!job.ok()) return report_error(job.status());
+    std::printf(
+        "submitted Slurm job array %s (%s/sweep.sbatch); when it is done: crpgs report %s\n",
+        job->c_str(), runs_abs.c_str(), runs_abs.c_str());
+    return 0;
+  }
+
+  auto sum = ex::run_sweep_local(runs, opt);
+  if (!sum.ok()) return report_error(sum.status());
+  if (a.dry_run) return sum->failed > 0 ? 1 : 0;
+  std::printf("sweep %s: %d finished now, %d already done, %d failed\n", spec->name.c_str(),
+              sum->succeeded, sum->skipped, sum->failed);
+  if (sum->failed > 0) {
+    std::fprintf(stderr, "crpgs: error: %d runs failed (rerun `crpgs sweep` to retry them):\n",
+                 sum->failed);
+    for (const auto& id : sum->failed_ids) std::fprintf(stderr, "  %s\n", id.c_str());
+    return 1;
+  }
+  std::printf("results: crpgs report %s\n", runs_dir.c_str());
+  return 0;
+}
+
+}  // namespace
+
+void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
+  static SweepArgs a;
+  auto* cmd = app.add_subcommand(
+      "sweep",
+      "Run a sweep: every base config x override grid x dataset of SWEEP.yaml (see "
+      "configs/sweeps/), each run in its own directory with its resolved config, logs and "
+      "metrics.json. Finished runs are skipped; crashed or killed ones are rerun (resuming from "
+      "their checkpoint). Summarise with `crpgs report RUNS_DIR`.");
+  cmd->add_option("SWEEP", a.file, "sweep file (YAML)")->required()->check(CLI::ExistingFile);
+  cmd->add_option("-o,--output", a.out, "runs directory (default: the sweep file's 'output')");
+  cmd->add_option("-j,--jobs", a.jobs, "runs at a time (default: the sweep file's 'workers')")
+      ->check(CLI::PositiveNumber);
+  cmd->add_flag("--slurm", a.slurm,
+                "submit the unfinished runs as a Slurm job array (sbatch; resources from the "
+                "sweep file) instead of running them here");
+  cmd->add_option("--run-index", a.run_index,
+                  "run only the run with this index (what each Slurm array task does)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_flag("--dry-run", a.dry_run,
+                "list what would run (with --slurm: print the sbatch script); run nothing");
+  cmd->callback([&g] { throw CLI::RuntimeError(run_sweep_command(a, g)); });
+}
+
+}  // namespace crpgs::cli
