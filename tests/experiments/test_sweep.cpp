@@ -119,6 +119,21 @@ TEST(Sweep, PrepareRunWritesConfigAndRunJson) {
   EXPECT_EQ(cfg->root()["model"]["sfa"].as<int>(), 1);
   EXPECT_EQ(cfg->root()["model"]["extra"].as<int>(), 7);
   EXPECT_EQ(cfg->root()["dataset"]["path"].as<std::string>(), "/data/fern");
+  // Relative dataset paths become absolute: from a base config, against its directory; from the
+  // sweep file, against the working directory.
+  write_text(dir + "/rel.yaml", "dataset: {path: ../data/x}\n");
+  SweepRun rel = r;
+  rel.config_path = dir + "/rel.yaml";
+  rel.overrides = {};
+  auto c1 = build_run_config(rel, nullptr);
+  ASSERT_TRUE(c1.ok());
+  EXPECT_EQ(c1->root()["dataset"]["path"].as<std::string>(),
+            (fs::path(dir).parent_path() / "data/x").string());
+  rel.overrides = {{"dataset.path", "some/where"}};
+  auto c2 = build_run_config(rel, nullptr);
+  ASSERT_TRUE(c2.ok());
+  EXPECT_EQ(c2->root()["dataset"]["path"].as<std::string>(),
+            (fs::current_path() / "some/where").string());
   EXPECT_EQ(cfg->root()["tag"].as<std::string>(), "b");
   const std::string info = read_text(r.dir + "/run.json");
   EXPECT_NE(info.find("\"method\": \"bee sfa=1\""), std::string::npos) << info;

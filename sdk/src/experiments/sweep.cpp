@@ -229,9 +229,23 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
   return runs;
 }
 
+/// Makes dataset.path absolute against `base`, so the copy in the run directory stays valid.
+Status absolute_dataset_path(Config& cfg, const fs::path& base) {
+  const YAML::Node ds = cfg.root()["dataset"];
+  if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
+  const std::string p = ds["path"].Scalar();
+  if (p.empty() || fs::path(p).is_absolute()) return OkStatus();
+  return cfg.apply_override("dataset.path=" + (base / p).lexically_normal().string());
+}
+
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
   CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
+  // As `crpgs train`: a dataset path in a config file is relative to that file; one set by the
+  // sweep file (like --set) is relative to the working directory.
+  CRPGS_RETURN_IF_ERROR(absolute_dataset_path(cfg, fs::absolute(run.config_path).parent_path()));
   for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
+  std::error_code ec;
+  CRPGS_RETURN_IF_ERROR(absolute_dataset_path(cfg, fs::current_path(ec)));
   if (!registry) return cfg;
   auto resolved = cfg.resolve(*registry);
   if (!resolved.ok())
