@@ -4,6 +4,7 @@
 #include <filesystem>
 
 #include "cli_common.h"
+#include "crpgs/experiments/run_metrics.h"
 #include "crpgs/trainer.h"
 #include "progress_bar.h"
 
@@ -21,7 +22,10 @@ class CliProgress final : public ProgressCallback {
  public:
   explicit CliProgress(int total) : bar_("train", total) {}
   void on_iteration(const TrainingProgress& p) override {
-    if (p.has_test_psnr) last_psnr_ = p.test_psnr;
+    if (p.has_test_psnr) {
+      last_psnr_ = p.test_psnr;
+      trace.push_back({p.elapsed_seconds, p.iteration, p.test_psnr});
+    }
     char extra[160];
     std::snprintf(extra, sizeof extra, "loss %.4f  test PSNR %s  anchors %lld  gaussians %lld",
                   p.loss, last_psnr_ > 0 ? (std::to_string(last_psnr_).substr(0, 5) + " dB").c_str()
@@ -32,6 +36,7 @@ class CliProgress final : public ProgressCallback {
   }
   void on_checkpoint(int, const std::string&) override {}
   void finish() { bar_.finish(last_extra_); }
+  std::vector<experiments::TracePoint> trace;  ///< held-out PSNR against training time
 
  private:
   ProgressBar bar_;
@@ -97,6 +102,21 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!eval.ok()) return report_error(eval.status());
   std::printf("test views (PNGs in %s/renders):\n", out_dir.c_str());
   print_eval(eval.value());
+
+  experiments::RunMetrics m;
+  m.method = cfg.file().empty() || cfg.file()[0] == '<' ? "demo" : fs::path(cfg.file()).stem().string();
+  m.dataset = t.dataset().name;
+  char hash[32];
+  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(cfg.hash()));
+  m.config_hash = hash;
+  for (const auto& v : eval->views)
+    m.views.push_back({v.name, v.psnr, v.ssim, eval->seconds_per_view});
+  m.train_seconds = train_s;
+  m.trace = std::move(progress.trace);
+  m.peak_memory_bytes = experiments::peak_rss_bytes();
+  st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
+  if (!st.ok()) return report_error(st);
+  std::printf("metrics: %s/metrics.json\n", out_dir.c_str());
   return 0;
 }
 
