@@ -3,10 +3,12 @@
 /// quantised with step q is |Φ((x+q/2−μ)/σ) − Φ((x−q/2−μ)/σ)|, lower-bounded, bits = −log2 p.
 #include <cmath>
 
+#include <ATen/Parallel.h>
 #include <torch/torch.h>
 
 #include "crpgs/entropy_model.h"
 #include "crpgs/plugin.h"
+#include "gaussian_coding.h"
 
 namespace crpgs {
 namespace {
@@ -61,7 +63,54 @@ class GaussianEntropy final : public EntropyModel {
     return -torch::log2(p);
   }
 
+  bool supports_coding() const override { return true; }
+
+  /// Tables from (mean/q, scale/q) on a fixed grid (gaussian_coding.h); throws (c10::Error) on
+  /// mismatched sizes, which is a caller bug, not bad data.
+  std::vector<uint8_t> compress(const torch::Tensor& symbols, const torch::Tensor& mean,
+                                const torch::Tensor& scale, const torch::Tensor& q) override {
+    const int64_t m = symbols.numel();
+    TORCH_CHECK(mean.numel() == m && scale.numel() == m && q.numel() == m, "gaussian compress: ", m,
+                " symbols but mean/scale/q have ", mean.numel(), "/", scale.numel(), "/", q.numel(),
+                " elements");
+    const auto s = as_cpu(symbols, torch::kInt);
+    const auto mu = as_cpu(mean, torch::kFloat), sc = as_cpu(scale, torch::kFloat),
+               qq = as_cpu(q, torch::kFloat);
+    auto bytes =
+        gaussian_coding::compress(s.data_ptr<int32_t>(), mu.data_ptr<float>(), sc.data_ptr<float>(),
+                                  qq.data_ptr<float>(), size_t(m), scale_bound_);
+    TORCH_CHECK(bytes.ok(), "gaussian compress: ", bytes.status().to_string());
+    return std::move(bytes).value();
+  }
+
+  torch::Tensor decompress(const std::vector<uint8_t>& bytes, const torch::Tensor& mean,
+                           const torch::Tensor& scale, const torch::Tensor& q,
+                           std::string* error) override {
+    const int64_t m = mean.numel();
+    if (scale.numel() != m || q.numel() != m) {
+      if (error)
+        *error = "gaussian decompress: mean/scale/q have " + std::to_string(m) + "/" +
+                 std::to_string(scale.numel()) + "/" + std::to_string(q.numel()) + " elements";
+      return {};
+    }
+    const auto mu = as_cpu(mean, torch::kFloat), sc = as_cpu(scale, torch::kFloat),
+               qq = as_cpu(q, torch::kFloat);
+    auto out = gaussian_coding::decompress(coding::ByteSpan(bytes), mu.data_ptr<float>(),
+                                           sc.data_ptr<float>(), qq.data_ptr<float>(), size_t(m),
+                                           scale_bound_, at::get_num_threads());
+    if (!out.ok()) {
+      if (error) *error = out.status().to_string();
+      return {};
+    }
+    auto t = torch::empty({m}, torch::kInt);
+    std::copy(out->begin(), out->end(), t.data_ptr<int32_t>());
+    return t;
+  }
+
  private:
+  static torch::Tensor as_cpu(const torch::Tensor& t, torch::ScalarType type) {
+    return t.detach().to(torch::kCPU, type).contiguous().reshape({-1});
+  }
   static torch::Tensor cdf(const torch::Tensor& z) { return 0.5 * torch::erfc(z * -M_SQRT1_2); }
   double likelihood_bound_, scale_bound_;
 };

@@ -1,0 +1,248 @@
+/// @file hash_grid_kernels.cpp
+/// @brief CPU kernels and the ATen reference of the binary hash grid. Built with
+/// -ffp-contract=off so kernel and reference round identically.
+#include "hash_grid_kernels.h"
+
+#include <ATen/Parallel.h>
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace crpgs::hash_grid {
+namespace {
+
+constexpr uint32_t kPrimes[3] = {1u, 2654435761u, 805459861u};
+
+/// Weights (normalised) and table rows of the 2^dim corners of one point at one level.
+/// Returns false if the point is outside [0, 1] on an axis the level reads.
+template <typename scalar_t>
+bool corners(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
+  scalar_t frac[3];
+  int64_t g[3];
+  for (int d = 0; d < lv.dim; ++d) {
+    const scalar_t v = u[lv.axes[d]];
+    if (!(v >= scalar_t(0) && v <= scalar_t(1))) return false;
+    const scalar_t p = v * scalar_t(lv.res - 2) + scalar_t(0.5);
+    const scalar_t fl = std::floor(p);
+    g[d] = int64_t(fl);
+    frac[d] = p - fl;
+  }
+  const int n = 1 << lv.dim;
+  scalar_t sum = 0;
+  for (int c = 0; c < n; ++c) {
+    scalar_t wc = 1;
+    bool border = false;
+    int64_t dense = 0, stride = 1;
+    uint32_t hash = 0;
+    for (int d = 0; d < lv.dim; ++d) {
+      int64_t id = g[d];
+      if (c & (1 << d)) {
+        wc = wc * frac[d];
+        id = std::min(id + 1, lv.res - 1);
+      } else {
+        wc = wc * (scalar_t(1) - frac[d]);
+      }
+      border = border || id == 0 || id == lv.res - 1;
+      dense += id * stride;
+      stride *= lv.res;
+      hash ^= uint32_t(id) * kPrimes[d];
+    }
+    if (border) wc = 0;
+    w[c] = wc;
+    sum = sum + wc;
+    row[c] = lv.offset + (lv.dense ? dense : int64_t(hash)) % lv.size;
+  }
+  const scalar_t denom = sum == scalar_t(0) ? scalar_t(1e-9) : sum;
+  for (int c = 0; c < n; ++c) w[c] = w[c] / denom;
+  return true;
+}
+
+template <typename scalar_t>
+void forward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* table, int64_t n,
+                  bool binarize, scalar_t* out) {
+  const int64_t F = spec.n_features, width = spec.output_dim();
+  at::parallel_for(0, n, 512, [&](int64_t begin, int64_t end) {
+    scalar_t w[8];
+    int64_t row[8];
+    for (int64_t b = begin; b < end; ++b) {
+      scalar_t* o = out + b * width;
+      for (size_t l = 0; l < spec.levels.size(); ++l, o += F) {
+        for (int64_t f = 0; f < F; ++f) o[f] = 0;
+        const GridLevel& lv = spec.levels[l];
+        if (!corners(lv, pos + b * 3, w, row)) continue;
+        for (int c = 0; c < (1 << lv.dim); ++c) {
+          const scalar_t* t = table + row[c] * F;
+          for (int64_t f = 0; f < F; ++f) {
+            const scalar_t v = binarize ? (t[f] >= scalar_t(0) ? scalar_t(1) : scalar_t(-1)) : t[f];
+            o[f] = o[f] + w[c] * v;
+          }
+        }
+      }
+    }
+  });
+}
+
+template <typename scalar_t>
+void backward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* grad_out, int64_t n,
+                   scalar_t* grad_table) {
+  const int64_t F = spec.n_features, width = spec.output_dim();
+  const int64_t n_levels = int64_t(spec.levels.size());
+  at::parallel_for(0, n_levels, 1, [&](int64_t lbegin, int64_t lend) {
+    scalar_t w[8];
+    int64_t row[8];
+    for (int64_t l = lbegin; l < lend; ++l) {
+      const GridLevel& lv = spec.levels[size_t(l)];
+      for (int64_t b = 0; b < n; ++b) {
+        if (!corners(lv, pos + b * 3, w, row)) continue;
+        const scalar_t* go = grad_out + b * width + l * F;
+        for (int c = 0; c < (1 << lv.dim); ++c) {
+          if (w[c] == scalar_t(0)) continue;
+          scalar_t* gt = grad_table + row[c] * F;
+          for (int64_t f = 0; f < F; ++f) gt[f] = gt[f] + w[c] * go[f];
+        }
+      }
+    }
+  });
+}
+
+void check_inputs(const GridSpec& spec, const at::Tensor& positions01, const at::Tensor& table) {
+  TORCH_CHECK(positions01.dim() == 2 && positions01.size(1) == 3,
+              "hash_grid: positions must be [N, 3], got ", positions01.sizes());
+  TORCH_CHECK(
+      table.dim() == 2 && table.size(0) == spec.n_entries && table.size(1) == spec.n_features,
+      "hash_grid: table must be [", spec.n_entries, ", ", spec.n_features, "], got ",
+      table.sizes());
+}
+
+}  // namespace
+
+GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
+                        const std::vector<int64_t>& res2, int log2_2, int64_t n_features) {
+  if (log2_3 < 3 || log2_3 > 30 || log2_2 < 3 || log2_2 > 30)
+    throw std::invalid_argument("hash_grid: log2 table sizes must lie in [3, 30]");
+  if (n_features < 1) throw std::invalid_argument("hash_grid: n_features_per_level must be >= 1");
+  GridSpec spec;
+  spec.n_features = n_features;
+  auto add = [&](int dim, int a0, int a1, int a2, int64_t res, int log2) {
+    if (res < 3 || res > 65536)
+      throw std::invalid_argument("hash_grid: resolution " + std::to_string(res) +
+                                  " outside [3, 65536]");
+    GridLevel lv;
+    lv.dim = dim;
+    lv.axes[0] = a0;
+    lv.axes[1] = a1;
+    lv.axes[2] = a2;
+    lv.res = res;
+    int64_t full = 1;
+    for (int d = 0; d < dim; ++d) full *= res;
+    const int64_t cap = int64_t(1) << log2;
+    lv.size = (std::min(cap, full) + 7) / 8 * 8;
+    lv.dense = full <= lv.size;
+    lv.offset = spec.n_entries;
+    spec.n_entries += lv.size;
+    spec.levels.push_back(lv);
+  };
+  for (int64_t r : res3) add(3, 0, 1, 2, r, log2_3);
+  for (int plane = 0; plane < 3; ++plane) {
+    const int axes[3][2] = {{0, 1}, {0, 2}, {1, 2}};  // xy, xz, yz
+    for (int64_t r : res2) add(2, axes[plane][0], axes[plane][1], 0, r, log2_2);
+  }
+  return spec;
+}
+
+at::Tensor grid_forward(const GridSpec& spec, const at::Tensor& positions01,
+                        const at::Tensor& table, bool binarize) {
+  check_inputs(spec, positions01, table);
+  TORCH_CHECK(table.device().is_cpu() && positions01.device().is_cpu(),
+              "hash_grid: CPU kernel called on non-CPU tensors");
+  const auto pos = positions01.to(table.scalar_type()).contiguous();
+  const auto tab = table.contiguous();
+  auto out = at::empty({pos.size(0), spec.output_dim()}, tab.options());
+  AT_DISPATCH_FLOATING_TYPES(tab.scalar_type(), "hash_grid_forward", [&] {
+    forward_impl<scalar_t>(spec, pos.data_ptr<scalar_t>(), tab.data_ptr<scalar_t>(), pos.size(0),
+                           binarize, out.data_ptr<scalar_t>());
+  });
+  return out;
+}
+
+at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
+                         const at::Tensor& table, const at::Tensor& grad_out, bool binarize) {
+  check_inputs(spec, positions01, table);
+  TORCH_CHECK(grad_out.dim() == 2 && grad_out.size(0) == positions01.size(0) &&
+                  grad_out.size(1) == spec.output_dim(),
+              "hash_grid: grad_out must be [N, ", spec.output_dim(), "]");
+  const auto pos = positions01.to(table.scalar_type()).contiguous();
+  const auto go = grad_out.to(table.scalar_type()).contiguous();
+  auto grad = at::zeros_like(table, at::MemoryFormat::Contiguous);
+  AT_DISPATCH_FLOATING_TYPES(table.scalar_type(), "hash_grid_backward", [&] {
+    backward_impl<scalar_t>(spec, pos.data_ptr<scalar_t>(), go.data_ptr<scalar_t>(), pos.size(0),
+                            grad.data_ptr<scalar_t>());
+  });
+  if (binarize) grad.mul_(table.abs().le(1).to(grad.scalar_type()));
+  return grad;
+}
+
+at::Tensor binarize_values(const at::Tensor& table) {
+  return at::where(table.ge(0), at::ones_like(table), -at::ones_like(table));
+}
+
+at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
+                                  const at::Tensor& table, bool binarize) {
+  check_inputs(spec, positions01, table);
+  at::Tensor values = table;
+  if (binarize) {
+    // Forward: exactly ±1. Backward: the gradient where |table| <= 1 (straight through).
+    const auto mask = table.detach().abs().le(1).to(table.scalar_type());
+    values = binarize_values(table.detach()) + (table - table.detach()) * mask;
+  }
+  const auto pos = positions01.detach().to(table.scalar_type());
+  const int64_t n = pos.size(0);
+  std::vector<at::Tensor> outs;
+  for (const GridLevel& lv : spec.levels) {
+    std::vector<int64_t> axes(lv.axes, lv.axes + lv.dim);
+    auto u = pos.index_select(
+        1, at::tensor(axes, at::TensorOptions().dtype(at::kLong).device(pos.device())));
+    const auto inside = u.ge(0).logical_and(u.le(1)).all(1);  // NaN compares false
+    u = at::where(inside.unsqueeze(1), u, at::zeros_like(u));
+    const auto p = u * double(lv.res - 2) + 0.5;
+    const auto fl = at::floor(p);
+    const auto frac = p - fl;
+    const auto g = fl.to(at::kLong);
+    std::vector<at::Tensor> ws, rows;
+    auto sum = at::zeros({n}, pos.options());
+    for (int c = 0; c < (1 << lv.dim); ++c) {
+      auto w = at::ones({n}, pos.options());
+      auto border = at::zeros({n}, pos.options().dtype(at::kBool));
+      auto dense = at::zeros({n}, g.options());
+      auto hash = at::zeros({n}, g.options());
+      int64_t stride = 1;
+      for (int d = 0; d < lv.dim; ++d) {
+        auto id = g.select(1, d);
+        if (c & (1 << d)) {
+          w = w * frac.select(1, d);
+          id = at::clamp_max(id + 1, lv.res - 1);
+        } else {
+          w = w * (1 - frac.select(1, d));
+        }
+        border = border.logical_or(id.eq(0)).logical_or(id.eq(lv.res - 1));
+        dense = dense + id * stride;
+        stride *= lv.res;
+        hash = at::bitwise_xor(hash, (id * int64_t(kPrimes[d])).bitwise_and(int64_t(0xFFFFFFFF)));
+      }
+      w = at::where(border, at::zeros_like(w), w);
+      sum = sum + w;
+      ws.push_back(w);
+      rows.push_back((lv.dense ? dense : hash).remainder(lv.size) + lv.offset);
+    }
+    const auto denom = at::where(sum.eq(0), at::full_like(sum, 1e-9), sum);
+    auto out = at::zeros({n, spec.n_features}, values.options());
+    for (size_t c = 0; c < ws.size(); ++c)
+      out = out + (ws[c] / denom).unsqueeze(1) * values.index_select(0, rows[c]);
+    outs.push_back(at::where(inside.unsqueeze(1), out, at::zeros_like(out)));
+  }
+  if (outs.empty()) return at::zeros({n, 0}, values.options());
+  return at::cat(outs, 1);
+}
+
+}  // namespace crpgs::hash_grid

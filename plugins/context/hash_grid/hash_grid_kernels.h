@@ -1,0 +1,57 @@
+/// @file hash_grid_kernels.h
+/// @brief HAC's binary multi-resolution hash grid (method.md §2.1): the level layout, fast CPU
+/// forward/backward kernels and a pure-ATen reference of the same maths (used on CUDA tensors
+/// and as the tests' oracle).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <ATen/ATen.h>
+
+namespace crpgs::hash_grid {
+
+/// One level of one grid. The xyz grid's levels come first, then the xy, xz and yz planes'.
+struct GridLevel {
+  int dim = 3;              ///< 3 (xyz) or 2 (a plane)
+  int axes[3] = {0, 1, 2};  ///< which input coordinates the level reads
+  int64_t res = 0;          ///< resolution; border vertices (0 and res-1) are discarded
+  int64_t offset = 0;       ///< first table entry of the level
+  int64_t size = 0;         ///< entries: min(2^log2, res^dim) rounded up to a multiple of 8
+  bool dense = false;       ///< res^dim <= size: index g_x + g_y res + g_z res^2, else hashed
+};
+
+struct GridSpec {
+  std::vector<GridLevel> levels;
+  int64_t n_features = 4;  ///< per level
+  int64_t n_entries = 0;   ///< table rows over all levels
+  int64_t output_dim() const { return int64_t(levels.size()) * n_features; }
+};
+
+/// The xyz grid (resolutions res3, table 2^log2_3) then the xy, xz and yz planes (res2,
+/// 2^log2_2 each). Throws std::invalid_argument for a resolution < 3 or a log2 outside [3, 30].
+GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
+                        const std::vector<int64_t>& res2, int log2_2, int64_t n_features);
+
+/// Output [N, output_dim] of positions01 [N, 3] against table [n_entries, n_features] (same
+/// floating dtype, CPU, contiguous). binarize: table values read as +1 (>= 0) or -1.
+/// A level outputs 0 for a point with a coordinate outside [0, 1] (or NaN). Parallel over
+/// points; the result does not depend on the thread count.
+at::Tensor grid_forward(const GridSpec& spec, const at::Tensor& positions01,
+                        const at::Tensor& table, bool binarize);
+/// Gradient w.r.t. the table [n_entries, n_features] given grad_out [N, output_dim]; with
+/// binarize, the straight-through mask |table| <= 1 is applied. Parallel over levels (disjoint
+/// table ranges), points in order inside a level: deterministic for any thread count.
+/// Positions get no gradient.
+at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
+                         const at::Tensor& table, const at::Tensor& grad_out, bool binarize);
+
+/// The same maths in ATen ops, any device, differentiable w.r.t. table through autograd
+/// (straight-through estimator included); positions are treated as constants.
+at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
+                                  const at::Tensor& table, bool binarize);
+
+/// sign(x) with HAC's convention (+1 where x >= 0, else -1), forward value of the binarisation.
+at::Tensor binarize_values(const at::Tensor& table);
+
+}  // namespace crpgs::hash_grid

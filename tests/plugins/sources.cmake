@@ -1,0 +1,9 @@
+# Plugin tests: the maths through the plugins' internal kernels (compiled in here too), the
+# components through the registry (CRPGS_PLUGIN_BUILD_DIR).
+list(APPEND CRPGS_TORCH_TEST_SOURCES
+  plugins/test_hash_grid.cpp
+  plugins/test_gaussian_coding.cpp
+  ../plugins/context/hash_grid/hash_grid_kernels.cpp
+  ../plugins/entropy/gaussian/gaussian_coding.cpp)
+set_source_files_properties(../plugins/context/hash_grid/hash_grid_kernels.cpp
+  ../plugins/entropy/gaussian/gaussian_coding.cpp PROPERTIES COMPILE_OPTIONS "-ffp-contract=off")
