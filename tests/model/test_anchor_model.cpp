@@ -25,7 +25,7 @@ std::shared_ptr<FeatureModel> identity_features(int dim) {
 
 struct SmallScene {
   Dataset ds;
-  std::shared_ptr<Rasterizer> raster = std::make_shared<raster::CpuRasterizer>(0);
+  std::shared_ptr<Rasterizer> raster = std::make_shared<raster::CpuRasterizer>(1);
   SmallScene() {
     SyntheticSceneOptions o;
     o.width = 48;
