@@ -3,6 +3,8 @@
 // count and reduced in a fixed order, so outputs are bitwise identical for any thread count.
 #include "raster/stages.h"
 
+#include "raster/tile_kernels.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -13,16 +15,6 @@
 #include <Eigen/Dense>
 #ifdef _OPENMP
 #include <omp.h>
-#endif
-
-// The pixel loops are written branch-free; `omp simd` makes GCC if-convert and vectorise them
-// (lanes compute the same IEEE operations, so results do not depend on the vector width).
-#ifdef _OPENMP
-#define CRPGS_SIMD _Pragma("omp simd")
-#define CRPGS_SIMD_SUM_STOPS _Pragma("omp simd reduction(+ : stops)")
-#else
-#define CRPGS_SIMD
-#define CRPGS_SIMD_SUM_STOPS
 #endif
 
 namespace crpgs::raster {
@@ -150,57 +142,11 @@ bool project_one(const CamD& cam, const float* m, const float* s, const float* q
   return std::isfinite(st.det) && st.det > 0;
 }
 
-// Cephes-style exp for x <= 0 (about 2 ulp), written so that the pixel loops vectorise.
-inline float fast_exp(float x) {
-  x = x < -87.f ? -87.f : x;
-  const float kf = (x * 1.44269504088896341f + 12582912.f) - 12582912.f;  // round to nearest
-  const float r = x - kf * 0.693359375f - kf * -2.12194440e-4f;
-  float p = 1.9875691500e-4f;
-  p = p * r + 1.3981999507e-3f;
-  p = p * r + 8.3334519073e-3f;
-  p = p * r + 4.1665795894e-2f;
-  p = p * r + 1.6666665459e-1f;
-  p = p * r + 5.0000001201e-1f;
-  p = p * r * r + r + 1.f;
-  const int bits = (static_cast<int>(kf) + 127) << 23;
-  return p * __builtin_bit_cast(float, bits);
-}
-
-// What the pixel loops read of one Gaussian: one cache line.
-struct alignas(64) Packed {
-  float mx, my, a, b, c, op, r, g, bl, d;
-  float ex, ey;  // half-extent of the region where alpha can reach 1/255; ex < 0: never does
-  float pad[4];
-};
-
-Packed pack_one(const float* m2, const float* con, float op, const float* col, float depth) {
-  Packed p{};
-  p.mx = m2[0];
-  p.my = m2[1];
-  p.a = con[0];
-  p.b = con[1];
-  p.c = con[2];
-  p.op = op;
-  p.r = col[0];
-  p.g = col[1];
-  p.bl = col[2];
-  p.d = depth;
-  // alpha >= 1/255 needs q = d^T K d <= Q = 2 ln(255 op); the ellipse's x half-extent is
-  // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
-  const double Q = 2.0 * std::log(255.0 * double(op));
-  const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
-  if (!(Q > 0) || !(det > 0)) {
-    p.ex = p.ey = -1.f;
-  } else {
-    p.ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
-    p.ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);
-  }
-  return p;
-}
+using kernels::Packed;
 
 std::vector<Packed> pack_all(const at::Tensor& means2d, const at::Tensor& conics,
                              const at::Tensor& opacities, const at::Tensor& colors,
-                             const at::Tensor& depths, const at::Tensor& radii, int threads) {
+                             const at::Tensor& depths, int threads) {
   const int64_t n = means2d.size(0);
   std::vector<Packed> out(static_cast<size_t>(n));
   const float* m2 = means2d.data_ptr<float>();
@@ -208,210 +154,37 @@ std::vector<Packed> pack_all(const at::Tensor& means2d, const at::Tensor& conics
   const float* op = opacities.data_ptr<float>();
   const float* col = colors.data_ptr<float>();
   const float* dep = depths.data_ptr<float>();
-  const int32_t* rad = radii.data_ptr<int32_t>();
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
     for (int64_t i = b; i < e; ++i) {
-      if (rad[i] <= 0) continue;  // never in a tile list
-      out[i] = pack_one(m2 + 2 * i, con + 3 * i, op[i], col + 3 * i, dep[i]);
+      out[i] = kernels::pack_one(m2 + 2 * i, con + 3 * i, op[i], col + 3 * i, dep[i]);
     }
   });
   return out;
 }
 
-// Pixels [x0, x1] x [y0, y1] of the tile that the Gaussian can reach; false when none.
-inline bool pixel_range(const Packed& g, int tx0, int ty0, int tw, int th, int& x0, int& x1,
-                        int& y0, int& y1) {
-  if (g.ex < 0) return false;
-  // Pixel x has its centre at x + 0.5 and is inside when |x + 0.5 - mx| <= ex.
-  const float fx0 = std::ceil(g.mx - g.ex - 0.5f), fx1 = std::floor(g.mx + g.ex - 0.5f);
-  const float fy0 = std::ceil(g.my - g.ey - 0.5f), fy1 = std::floor(g.my + g.ey - 0.5f);
-  const float lo_x = float(tx0), hi_x = float(tx0 + tw - 1);
-  const float lo_y = float(ty0), hi_y = float(ty0 + th - 1);
-  if (!(fx1 >= lo_x && fx0 <= hi_x && fy1 >= lo_y && fy0 <= hi_y)) return false;
-  x0 = int(std::max(fx0, lo_x));
-  x1 = int(std::min(fx1, hi_x));
-  y0 = int(std::max(fy0, lo_y));
-  y1 = int(std::min(fy1, hi_y));
-  return true;
+// Tiles by decreasing length of their list (ties by index), so that the dynamic schedule
+// starts the long tiles first; each tile's result does not depend on who computes it.
+std::vector<int32_t> tiles_by_work(const int32_t* offsets, int n_tiles) {
+  std::vector<int32_t> order(static_cast<size_t>(n_tiles));
+  for (int t = 0; t < n_tiles; ++t) order[t] = t;
+  std::stable_sort(order.begin(), order.end(), [&](int32_t x, int32_t y) {
+    return offsets[x + 1] - offsets[x] > offsets[y + 1] - offsets[y];
+  });
+  return order;
 }
 
-constexpr int kTilePixels = kTileSize * kTileSize;
-
-struct TileGeom {
-  int x0, y0, w, h;
-};
-
-inline TileGeom tile_geom(int tile, int tiles_x, int width, int height) {
-  const int tx = tile % tiles_x, ty = tile / tiles_x;
-  TileGeom g;
-  g.x0 = tx * kTileSize;
-  g.y0 = ty * kTileSize;
-  g.w = std::min(kTileSize, width - g.x0);
-  g.h = std::min(kTileSize, height - g.y0);
-  return g;
-}
-
-template <bool kDepth>
-void forward_tile(int tile, const Packed* gs, const int32_t* offsets, const int32_t* ids,
-                  int tiles_x, int width, int height, const std::array<float, 3>& bg, float* image,
-                  float* alpha_out, float* depth_out, float* final_T, int32_t* last_out) {
-  const TileGeom tg = tile_geom(tile, tiles_x, width, height);
-  alignas(64) float T[kTilePixels], cr[kTilePixels], cg[kTilePixels], cb[kTilePixels];
-  alignas(64) float cd[kTilePixels];
-  alignas(64) int32_t last[kTilePixels], done[kTilePixels];
-  for (int p = 0; p < kTilePixels; ++p) {
-    T[p] = 1.f;
-    cr[p] = cg[p] = cb[p] = cd[p] = 0.f;
-    last[p] = 0;
-    // Padding pixels of a partial tile count as finished.
-    done[p] = (p % kTileSize < tg.w && p / kTileSize < tg.h) ? 0 : 1;
-  }
-  int n_done = kTilePixels - tg.w * tg.h;
-  const int start = offsets[tile], count = offsets[tile + 1] - start;
-  for (int k = 0; k < count && n_done < kTilePixels; ++k) {
-    const Packed& g = gs[ids[start + k]];
-    int xa, xb, ya, yb;
-    if (!pixel_range(g, tg.x0, tg.y0, tg.w, tg.h, xa, xb, ya, yb)) continue;
-    const float mx = g.mx, a = g.a, b = g.b, c = g.c, op = g.op;
-    const float r = g.r, gg = g.g, bl = g.bl, d = g.d;
-    const int32_t kk = k + 1;
-    int stops = 0;
-    for (int y = ya; y <= yb; ++y) {
-      const float dy = g.my - (float(y) + 0.5f);
-      const int row = (y - tg.y0) * kTileSize - tg.x0;
-      CRPGS_SIMD_SUM_STOPS
-      for (int x = xa; x <= xb; ++x) {
-        const int p = row + x;
-        const float dx = mx - (float(x) + 0.5f);
-        float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
-        power = power > 0.f ? 0.f : power;
-        const float vis = op * fast_exp(power);
-        const float al = vis < kMaxAlpha ? vis : kMaxAlpha;
-        const bool ok = done[p] == 0 && al >= kMinAlpha;
-        const float t = T[p];
-        const float nt = t * (1.f - al);
-        const bool stop = ok && nt <= kMinTransmittance;
-        const bool acc = ok && !stop;
-        const float w = acc ? al * t : 0.f;
-        cr[p] += w * r;
-        cg[p] += w * gg;
-        cb[p] += w * bl;
-        if (kDepth) cd[p] += w * d;
-        T[p] = acc ? nt : t;
-        last[p] = acc ? kk : last[p];
-        done[p] = stop ? 1 : done[p];
-        stops += stop ? 1 : 0;
-      }
-    }
-    n_done += stops;
-  }
-  for (int py = 0; py < tg.h; ++py) {
-    for (int px = 0; px < tg.w; ++px) {
-      const int p = py * kTileSize + px;
-      const int64_t pix = int64_t(tg.y0 + py) * width + (tg.x0 + px);
-      image[3 * pix + 0] = cr[p] + T[p] * bg[0];
-      image[3 * pix + 1] = cg[p] + T[p] * bg[1];
-      image[3 * pix + 2] = cb[p] + T[p] * bg[2];
-      alpha_out[pix] = 1.f - T[p];
-      if (kDepth) depth_out[pix] = cd[p];
-      final_T[pix] = T[p];
-      last_out[pix] = last[p];
-    }
-  }
-}
-
-// Per-entry gradient slots: mean2d (2), conic (3), opacity, colour (3), depth.
-constexpr int kGradSlots = 10;
-
-template <bool kDepth>
-void backward_tile(int tile, const Packed* gs, const int32_t* offsets, const int32_t* ids,
-                   int tiles_x, int width, int height, const std::array<float, 3>& bg,
-                   const float* final_T, const int32_t* last_in, const float* v_image,
-                   const float* v_alpha, const float* v_depth, float* entry_grads) {
-  const TileGeom tg = tile_geom(tile, tiles_x, width, height);
-  alignas(64) float T[kTilePixels], Rr[kTilePixels], Rg[kTilePixels], Rb[kTilePixels];
-  alignas(64) float Rd[kTilePixels], gr[kTilePixels], gg[kTilePixels], gb[kTilePixels];
-  alignas(64) float gd[kTilePixels], tf[kTilePixels];
-  alignas(64) int32_t last[kTilePixels];
-  int kmax = 0;
-  for (int p = 0; p < kTilePixels; ++p) {
-    const int px = p % kTileSize, py = p / kTileSize;
-    T[p] = 1.f;
-    Rr[p] = Rg[p] = Rb[p] = Rd[p] = 0.f;
-    gr[p] = gg[p] = gb[p] = gd[p] = tf[p] = 0.f;
-    last[p] = 0;
-    if (px >= tg.w || py >= tg.h) continue;
-    const int64_t pix = int64_t(tg.y0 + py) * width + (tg.x0 + px);
-    T[p] = final_T[pix];
-    last[p] = last_in[pix];
-    kmax = std::max(kmax, last[p]);
-    if (v_image) {
-      gr[p] = v_image[3 * pix];
-      gg[p] = v_image[3 * pix + 1];
-      gb[p] = v_image[3 * pix + 2];
-    }
-    if (kDepth && v_depth) gd[p] = v_depth[pix];
-    // d(bg term + alpha output)/d alpha_i = T_final * (v_alpha - bg . v_image) / (1 - alpha_i).
-    const float va = v_alpha ? v_alpha[pix] : 0.f;
-    tf[p] = T[p] * (va - (bg[0] * gr[p] + bg[1] * gg[p] + bg[2] * gb[p]));
-  }
-  const int start = offsets[tile];
-  for (int k = kmax - 1; k >= 0; --k) {
-    const Packed& g = gs[ids[start + k]];
-    int xa, xb, ya, yb;
-    if (!pixel_range(g, tg.x0, tg.y0, tg.w, tg.h, xa, xb, ya, yb)) continue;
-    const float mx = g.mx, a = g.a, b = g.b, c = g.c, op = g.op;
-    const float r = g.r, gc = g.g, bl = g.bl, d = g.d;
-    // Per-column partial sums, reduced in a fixed order below (vectorisable, deterministic).
-    alignas(64) float acc[kGradSlots][kTileSize] = {};
-    for (int y = ya; y <= yb; ++y) {
-      const float dy = g.my - (float(y) + 0.5f);
-      const int row = (y - tg.y0) * kTileSize - tg.x0;
-      CRPGS_SIMD
-      for (int x = xa; x <= xb; ++x) {
-        const int p = row + x, col = x - tg.x0;
-        const float dx = mx - (float(x) + 0.5f);
-        float power = -0.5f * (a * dx * dx + c * dy * dy) - b * dx * dy;
-        const bool pos = power > 0.f;
-        power = pos ? 0.f : power;
-        const float G = fast_exp(power);
-        const float vis = op * G;
-        const float al = vis < kMaxAlpha ? vis : kMaxAlpha;
-        const bool ok = (k < last[p]) & (al >= kMinAlpha);
-        const float t = T[p], rr = Rr[p], rg = Rg[p], rb = Rb[p], rd = Rd[p];
-        const float pr = gr[p], pg = gg[p], pb = gb[p], pd = gd[p];
-        const float oma = 1.f - al;
-        const float ti = t / oma;
-        const float w = ok ? al * ti : 0.f;
-        float v_al = ti * ((r - rr) * pr + (gc - rg) * pg + (bl - rb) * pb) + tf[p] / oma;
-        if (kDepth) v_al += ti * (d - rd) * pd;
-        v_al = ok ? v_al : 0.f;
-        acc[6][col] += w * pr;
-        acc[7][col] += w * pg;
-        acc[8][col] += w * pb;
-        if (kDepth) acc[9][col] += w * pd;
-        Rr[p] = ok ? al * r + oma * rr : rr;
-        Rg[p] = ok ? al * gc + oma * rg : rg;
-        Rb[p] = ok ? al * bl + oma * rb : rb;
-        if (kDepth) Rd[p] = ok ? al * d + oma * rd : rd;
-        T[p] = ok ? ti : t;
-        const bool unclamped = vis <= kMaxAlpha;
-        acc[5][col] += unclamped ? G * v_al : 0.f;
-        const float v_pow = (unclamped & !pos) ? G * op * v_al : 0.f;
-        acc[0][col] += v_pow * -(a * dx + b * dy);
-        acc[1][col] += v_pow * -(b * dx + c * dy);
-        acc[2][col] += v_pow * (-0.5f * dx * dx);
-        acc[3][col] += v_pow * (-dx * dy);
-        acc[4][col] += v_pow * (-0.5f * dy * dy);
-      }
-    }
-    float* out = entry_grads + int64_t(start + k) * kGradSlots;
-    for (int s = 0; s < kGradSlots; ++s) {
-      float sum = 0.f;
-      for (int col = 0; col < kTileSize; ++col) sum += acc[s][col];
-      out[s] = sum;
-    }
-  }
+kernels::TileInputs tile_inputs(const std::vector<Packed>& gs, const TileIntersections& isect,
+                                int width, int height, const std::array<float, 3>& bg, bool depth) {
+  kernels::TileInputs in;
+  in.gs = gs.data();
+  in.offsets = isect.tile_offsets.data_ptr<int32_t>();
+  in.ids = isect.gaussian_ids.data_ptr<int32_t>();
+  in.tiles_x = isect.tiles_x;
+  in.width = width;
+  in.height = height;
+  for (int k = 0; k < 3; ++k) in.bg[k] = bg[k];
+  in.depth = depth;
+  return in;
 }
 
 }  // namespace
@@ -655,26 +428,17 @@ RasterizeResult rasterize_forward(const at::Tensor& means2d, const at::Tensor& c
   if (render_depth) out.depth = at::empty({height, width, 1}, fopt);
   out.final_T = at::empty({height, width}, fopt);
   out.last_contrib = at::empty({height, width}, fopt.dtype(at::kInt));
-  // Radii are not needed here: only listed Gaussians are read; pass a dummy "all visible".
-  const int64_t n = means2d.size(0);
-  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths,
-                                          at::ones({n}, fopt.dtype(at::kInt)), threads);
-  const int32_t* off = isect.tile_offsets.data_ptr<int32_t>();
-  const int32_t* ids = isect.gaussian_ids.data_ptr<int32_t>();
-  float* img = out.image.data_ptr<float>();
-  float* al = out.alpha.data_ptr<float>();
-  float* dp = render_depth ? out.depth.data_ptr<float>() : nullptr;
-  float* ft = out.final_T.data_ptr<float>();
-  int32_t* lc = out.last_contrib.data_ptr<int32_t>();
-  parallel_items(int64_t(isect.tiles_x) * isect.tiles_y, threads, [&](int64_t t) {
-    if (render_depth) {
-      forward_tile<true>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background, img,
-                         al, dp, ft, lc);
-    } else {
-      forward_tile<false>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background,
-                          img, al, dp, ft, lc);
-    }
-  });
+  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths, threads);
+  const kernels::TileInputs in = tile_inputs(gs, isect, width, height, background, render_depth);
+  kernels::ForwardOutputs fo;
+  fo.image = out.image.data_ptr<float>();
+  fo.alpha = out.alpha.data_ptr<float>();
+  fo.depth = render_depth ? out.depth.data_ptr<float>() : nullptr;
+  fo.final_T = out.final_T.data_ptr<float>();
+  fo.last = out.last_contrib.data_ptr<int32_t>();
+  const std::vector<int32_t> order = tiles_by_work(in.offsets, isect.tiles_x * isect.tiles_y);
+  parallel_items(int64_t(order.size()), threads,
+                 [&](int64_t t) { kernels::forward_tile(order[t], in, fo); });
   return out;
 }
 
@@ -697,23 +461,21 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
   const float* vi = ptr_or_null(v_image, npix * 3);
   const float* va = ptr_or_null(v_alpha, npix);
   const float* vd = render_depth ? ptr_or_null(v_depth, npix) : nullptr;
-  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths,
-                                          at::ones({n}, fopt.dtype(at::kInt)), threads);
-  const int32_t* off = isect.tile_offsets.data_ptr<int32_t>();
-  const int32_t* ids = isect.gaussian_ids.data_ptr<int32_t>();
+  const std::vector<Packed> gs = pack_all(means2d, conics, opacities, colors, depths, threads);
+  const kernels::TileInputs in = tile_inputs(gs, isect, width, height, background, render_depth);
+  kernels::BackwardInputs bi;
+  bi.final_T = fwd.final_T.data_ptr<float>();
+  bi.last = fwd.last_contrib.data_ptr<int32_t>();
+  bi.v_image = vi;
+  bi.v_alpha = va;
+  bi.v_depth = vd;
+  const int32_t* ids = in.ids;
   const int64_t m = isect.gaussian_ids.numel();
+  constexpr int kGradSlots = kernels::kGradSlots;
   std::vector<float> entry(static_cast<size_t>(m) * kGradSlots, 0.f);
-  const float* ft = fwd.final_T.data_ptr<float>();
-  const int32_t* lc = fwd.last_contrib.data_ptr<int32_t>();
-  parallel_items(int64_t(isect.tiles_x) * isect.tiles_y, threads, [&](int64_t t) {
-    if (render_depth) {
-      backward_tile<true>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background, ft,
-                          lc, vi, va, vd, entry.data());
-    } else {
-      backward_tile<false>(int(t), gs.data(), off, ids, isect.tiles_x, width, height, background,
-                           ft, lc, vi, va, vd, entry.data());
-    }
-  });
+  const std::vector<int32_t> order = tiles_by_work(in.offsets, isect.tiles_x * isect.tiles_y);
+  parallel_items(int64_t(order.size()), threads,
+                 [&](int64_t t) { kernels::backward_tile(order[t], in, bi, entry.data()); });
   RasterizeGrads g;
   g.v_means2d = at::zeros({n, 2}, fopt);
   g.v_conics = at::zeros({n, 3}, fopt);
