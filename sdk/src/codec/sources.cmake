@@ -1,0 +1,3 @@
+# Sources of sdk/src/codec (paths relative to sdk/): entropy parameters, model encode/decode.
+list(APPEND CRPGS_TORCH_SOURCES
+  src/codec/entropy_params.cpp)
