@@ -12,11 +12,18 @@
 #include "raster/stages.h"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
-#define CRPGS_TARGET_CLONES __attribute__((target_clones("avx2", "default")))
+#define CRPGS_TARGET_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define CRPGS_TARGET_CLONES
 #endif
 #define CRPGS_INLINE inline __attribute__((always_inline))
+#define CRPGS_LAMBDA_INLINE __attribute__((always_inline))
+
+// GCC drops -ffp-contract=off for target_clones("arch=...") clones; FMA contraction could make
+// forward and backward round alpha differently, so it is switched off here again.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("fp-contract=off")
+#endif
 
 namespace crpgs::raster::kernels {
 namespace {
@@ -26,6 +33,7 @@ typedef float vf __attribute__((vector_size(kLanes * sizeof(float))));
 typedef int32_t vi __attribute__((vector_size(kLanes * sizeof(int32_t))));
 
 constexpr int kChunksPerRow = kTileSize / kLanes;
+static_assert(kChunksPerRow == 2, "the pixel loops handle one or two chunks per row");
 constexpr int kChunks = kTileSize * kChunksPerRow;
 constexpr int kTilePixels = kTileSize * kTileSize;
 static_assert(kTileSize % kLanes == 0, "a tile row is a whole number of chunks");
@@ -48,13 +56,12 @@ CRPGS_INLINE vf vexp(vf x) {
   x = select(x < -87.f, splat(-87.f), x);
   const vf kf = (x * 1.44269504088896341f + 12582912.f) - 12582912.f;  // round to nearest
   const vf r = x - kf * 0.693359375f - kf * -2.12194440e-4f;
-  vf p = splat(1.9875691500e-4f);
-  p = p * r + 1.3981999507e-3f;
-  p = p * r + 8.3334519073e-3f;
-  p = p * r + 4.1665795894e-2f;
-  p = p * r + 1.6666665459e-1f;
-  p = p * r + 5.0000001201e-1f;
-  p = p * r * r + r + 1.f;
+  // 1 + r + r^2 (c5 + c4 r + c3 r^2 + c2 r^3 + c1 r^4 + c0 r^5), Estrin's scheme (short chains).
+  const vf r2 = r * r, r4 = r2 * r2;
+  const vf lo = 5.0000001201e-1f + 1.6666665459e-1f * r;
+  const vf mid = 4.1665795894e-2f + 8.3334519073e-3f * r;
+  const vf hi = 1.3981999507e-3f + 1.9875691500e-4f * r;
+  const vf p = (r + 1.f) + r2 * ((lo + r2 * mid) + r4 * hi);
   const vi bits = (__builtin_convertvector(kf, vi) + 127) << 23;
   return p * __builtin_bit_cast(vf, bits);
 }
@@ -123,7 +130,10 @@ CRPGS_INLINE int gather(const TileInputs& in, int tile, const TileGeom& tg, int 
   const int start = in.offsets[tile];
   if (int(out.size()) < count) out.resize(size_t(count));
   int n = 0;
+  constexpr int kAhead = 16;  // prefetch distance: the Gaussians are scattered in memory
+  for (int k = 0; k < std::min(count, kAhead); ++k) __builtin_prefetch(&in.gs[in.ids[start + k]]);
   for (int k = 0; k < count; ++k) {
+    if (k + kAhead < count) __builtin_prefetch(&in.gs[in.ids[start + k + kAhead]]);
     const Packed& g = in.gs[in.ids[start + k]];
     int xa, xb, ya, yb;
     if (!pixel_range(g, tg, xa, xb, ya, yb)) continue;
@@ -147,21 +157,42 @@ CRPGS_INLINE int gather(const TileInputs& in, int tile, const TileGeom& tg, int 
   return n;
 }
 
-// Per-row terms shared by forward and backward, so both compute bitwise the same alpha.
+// Per-column and per-row terms of the exponent, shared by forward and backward so that both
+// compute bitwise the same alpha: power = -0.5 (a dx^2 + c dy^2) - b dx dy.
+struct ColTerms {
+  vf dx, hadx2;  // mx - pixel centre, -0.5 a dx^2
+};
+
+CRPGS_INLINE void col_terms(const Entry& e, const vf* px, ColTerms* ct) {
+  for (int c = e.c0; c <= e.c1; ++c) {
+    ct[c].dx = e.mx - px[c];
+    ct[c].hadx2 = -0.5f * (e.a * ct[c].dx * ct[c].dx);
+  }
+}
+
 struct RowTerms {
-  float dy, cdy2, bdy;
+  float dy, hcdy2, bdy;  // my - pixel centre, -0.5 c dy^2, b dy
 };
 
 CRPGS_INLINE RowTerms row_terms(const Entry& e, float py) {
   RowTerms t;
   t.dy = e.my - py;
-  t.cdy2 = e.c * t.dy * t.dy;
+  t.hcdy2 = -0.5f * (e.c * t.dy * t.dy);
   t.bdy = e.b * t.dy;
   return t;
 }
 
-CRPGS_INLINE vf power_of(const Entry& e, const RowTerms& rt, vf dx) {
-  return -0.5f * (e.a * dx * dx + rt.cdy2) - rt.bdy * dx;
+CRPGS_INLINE vf power_of(const ColTerms& ct, const RowTerms& rt) {
+  return (ct.hadx2 + rt.hcdy2) - rt.bdy * ct.dx;
+}
+
+// Per-row factors of the exponent's gradient (backward only).
+struct RowGrad {
+  float cdy, hdy2, ndy;  // c dy, -0.5 dy^2, -dy
+};
+
+CRPGS_INLINE RowGrad row_grad(const Entry& e, const RowTerms& rt) {
+  return RowGrad{e.c * rt.dy, -0.5f * rt.dy * rt.dy, -rt.dy};
 }
 
 thread_local std::vector<Entry> tl_entries;
@@ -196,30 +227,43 @@ CRPGS_INLINE void forward_impl(int tile, const TileInputs& in, const ForwardOutp
     const Entry& e = es[size_t(j)];
     const vi kk = splati(e.k + 1);
     vi stopped = splati(0);
-    for (int y = e.y0; y <= e.y1; ++y) {
-      const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
-      for (int c = e.c0; c <= e.c1; ++c) {
+    ColTerms ct[kChunksPerRow];
+    col_terms(e, px, ct);
+    auto step = [&](int i, const ColTerms& col, const RowTerms& rt) CRPGS_LAMBDA_INLINE {
+      vf power = power_of(col, rt);
+      power = select(power > 0.f, splat(0.f), power);
+      const vf vis = e.op * vexp(power);
+      const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
+      const vi ok = ~done[i] & (al >= kMinAlpha);
+      const vf t = T[i];
+      const vf nt = t * (1.f - al);
+      const vi stop = ok & (nt <= kMinTransmittance);
+      const vi acc = ok & ~stop;
+      const vf w = select(acc, al * t, splat(0.f));
+      cr[i] += w * e.r;
+      cg[i] += w * e.g;
+      cb[i] += w * e.bl;
+      if (kDepth) cd[i] += w * e.d;
+      T[i] = select(acc, nt, t);
+      last[i] = select(acc, kk, last[i]);
+      done[i] |= stop;
+      stopped |= stop;
+    };
+    // One loop body per box width (one or both chunks of a row) keeps the branches regular.
+    if (e.c0 == e.c1) {
+      const int c = e.c0;
+      for (int y = e.y0; y <= e.y1; ++y) {
         const int i = y * kChunksPerRow + c;
         if (chunk_done[i]) continue;
-        const vf dx = e.mx - px[c];
-        vf power = power_of(e, rt, dx);
-        power = select(power > 0.f, splat(0.f), power);
-        const vf vis = e.op * vexp(power);
-        const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
-        const vi ok = ~done[i] & (al >= kMinAlpha);
-        const vf t = T[i];
-        const vf nt = t * (1.f - al);
-        const vi stop = ok & (nt <= kMinTransmittance);
-        const vi acc = ok & ~stop;
-        const vf w = select(acc, al * t, splat(0.f));
-        cr[i] += w * e.r;
-        cg[i] += w * e.g;
-        cb[i] += w * e.bl;
-        if (kDepth) cd[i] += w * e.d;
-        T[i] = select(acc, nt, t);
-        last[i] = select(acc, kk, last[i]);
-        done[i] |= stop;
-        stopped |= stop;
+        step(i, ct[c], row_terms(e, float(tg.y0 + y) + 0.5f));
+      }
+    } else {
+      for (int y = e.y0; y <= e.y1; ++y) {
+        const int i = y * kChunksPerRow;
+        if (chunk_done[i] & chunk_done[i + 1]) continue;
+        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+        step(i, ct[0], rt);
+        step(i + 1, ct[1], rt);
       }
     }
     if (any(stopped)) {  // rare: recount finished pixels and chunks
@@ -298,47 +342,69 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
     const vi kv = splati(k);
     vf acc[kGradSlots];
     for (int s = 0; s < kGradSlots; ++s) acc[s] = splat(0.f);
-    for (int y = e.y0; y <= e.y1; ++y) {
-      const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
-      const float cdy = e.c * rt.dy, hdy2 = -0.5f * rt.dy * rt.dy;
-      for (int c = e.c0; c <= e.c1; ++c) {
+    ColTerms ct[kChunksPerRow];
+    col_terms(e, px, ct);
+    vf adx[kChunksPerRow], bdx[kChunksPerRow], hdx2[kChunksPerRow];
+    for (int c = e.c0; c <= e.c1; ++c) {
+      adx[c] = e.a * ct[c].dx;
+      bdx[c] = e.b * ct[c].dx;
+      hdx2[c] = -0.5f * (ct[c].dx * ct[c].dx);
+    }
+    auto step = [&](int i, int c, const RowTerms& rt, const RowGrad& rw) CRPGS_LAMBDA_INLINE {
+      const ColTerms& col = ct[c];
+      const vf cadx = adx[c], cbdx = bdx[c], chdx2 = hdx2[c];
+      const vf dx = col.dx;
+      vf power = power_of(col, rt);
+      const vi pos = power > 0.f;
+      power = select(pos, splat(0.f), power);
+      const vf G = vexp(power);
+      const vf vis = e.op * G;
+      const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
+      const vi ok = (kv < last[i]) & (al >= kMinAlpha);
+      const vf t = T[i], rr = Rr[i], rg = Rg[i], rb = Rb[i];
+      const vf pr = gr[i], pg = gg[i], pb = gb[i];
+      const vf oma = 1.f - al;
+      const vf inv = 1.f / oma;
+      const vf ti = t * inv;
+      const vf w = select(ok, al * ti, splat(0.f));
+      vf v_al = ti * ((e.r - rr) * pr + (e.g - rg) * pg + (e.bl - rb) * pb) + tf[i] * inv;
+      if (kDepth) v_al += ti * (e.d - Rd[i]) * gd[i];
+      v_al = select(ok, v_al, splat(0.f));
+      acc[6] += w * pr;
+      acc[7] += w * pg;
+      acc[8] += w * pb;
+      if (kDepth) acc[9] += w * gd[i];
+      Rr[i] = select(ok, al * e.r + oma * rr, rr);
+      Rg[i] = select(ok, al * e.g + oma * rg, rg);
+      Rb[i] = select(ok, al * e.bl + oma * rb, rb);
+      if (kDepth) Rd[i] = select(ok, al * e.d + oma * Rd[i], Rd[i]);
+      T[i] = select(ok, ti, t);
+      const vi unclamped = vis <= kMaxAlpha;
+      const vf gv = G * v_al;
+      acc[5] += select(unclamped, gv, splat(0.f));
+      const vf v_pow = select(unclamped & ~pos, gv * e.op, splat(0.f));
+      acc[0] -= v_pow * (cadx + rt.bdy);
+      acc[1] -= v_pow * (cbdx + rw.cdy);
+      acc[2] += v_pow * chdx2;
+      acc[3] += v_pow * (dx * rw.ndy);
+      acc[4] += v_pow * rw.hdy2;
+    };
+    if (e.c0 == e.c1) {
+      const int c = e.c0;
+      for (int y = e.y0; y <= e.y1; ++y) {
         const int i = y * kChunksPerRow + c;
         if (k >= chunk_last[i]) continue;
-        const vf dx = e.mx - px[c];
-        vf power = power_of(e, rt, dx);
-        const vi pos = power > 0.f;
-        power = select(pos, splat(0.f), power);
-        const vf G = vexp(power);
-        const vf vis = e.op * G;
-        const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
-        const vi ok = (kv < last[i]) & (al >= kMinAlpha);
-        const vf t = T[i], rr = Rr[i], rg = Rg[i], rb = Rb[i];
-        const vf pr = gr[i], pg = gg[i], pb = gb[i];
-        const vf oma = 1.f - al;
-        const vf inv = 1.f / oma;
-        const vf ti = t * inv;
-        const vf w = select(ok, al * ti, splat(0.f));
-        vf v_al = ti * ((e.r - rr) * pr + (e.g - rg) * pg + (e.bl - rb) * pb) + tf[i] * inv;
-        if (kDepth) v_al += ti * (e.d - Rd[i]) * gd[i];
-        v_al = select(ok, v_al, splat(0.f));
-        acc[6] += w * pr;
-        acc[7] += w * pg;
-        acc[8] += w * pb;
-        if (kDepth) acc[9] += w * gd[i];
-        Rr[i] = select(ok, al * e.r + oma * rr, rr);
-        Rg[i] = select(ok, al * e.g + oma * rg, rg);
-        Rb[i] = select(ok, al * e.bl + oma * rb, rb);
-        if (kDepth) Rd[i] = select(ok, al * e.d + oma * Rd[i], Rd[i]);
-        T[i] = select(ok, ti, t);
-        const vi unclamped = vis <= kMaxAlpha;
-        const vf gv = G * v_al;
-        acc[5] += select(unclamped, gv, splat(0.f));
-        const vf v_pow = select(unclamped & ~pos, gv * e.op, splat(0.f));
-        acc[0] += v_pow * -(e.a * dx + rt.bdy);
-        acc[1] += v_pow * -(e.b * dx + cdy);
-        acc[2] += v_pow * (-0.5f * dx * dx);
-        acc[3] += v_pow * (-dx * rt.dy);
-        acc[4] += v_pow * hdy2;
+        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+        step(i, c, rt, row_grad(e, rt));
+      }
+    } else {
+      for (int y = e.y0; y <= e.y1; ++y) {
+        const int i = y * kChunksPerRow;
+        if (k >= chunk_last[i] && k >= chunk_last[i + 1]) continue;
+        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+        const RowGrad rw = row_grad(e, rt);
+        step(i, 0, rt, rw);
+        step(i + 1, 1, rt, rw);
       }
     }
     float* o = entry_grads + int64_t(start + k) * kGradSlots;
