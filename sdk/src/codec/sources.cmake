@@ -1,3 +1,4 @@
 # Sources of sdk/src/codec (paths relative to sdk/): entropy parameters, model encode/decode.
 list(APPEND CRPGS_TORCH_SOURCES
-  src/codec/entropy_params.cpp)
+  src/codec/entropy_params.cpp
+  src/codec/codec.cpp)

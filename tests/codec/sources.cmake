@@ -1,0 +1,1 @@
+list(APPEND CRPGS_TORCH_TEST_SOURCES codec/test_codec.cpp)
