@@ -1,2 +1,2 @@
 # Test sources of tests/model (paths relative to tests/).
-list(APPEND CRPGS_TORCH_TEST_SOURCES model/test_anchor_model.cpp)
+list(APPEND CRPGS_TORCH_TEST_SOURCES model/test_anchor_model.cpp model/test_rate_model.cpp)

@@ -14,6 +14,9 @@
 #include <torch/types.h>
 
 #include "crpgs/camera.h"
+#include "crpgs/context_model.h"
+#include "crpgs/entropy_model.h"
+#include "crpgs/entropy_params.h"
 #include "crpgs/feature_model.h"
 #include "crpgs/rasterizer.h"
 #include "crpgs/status.h"
@@ -61,6 +64,44 @@ struct AnchorModelOptions {
   LearningRates lr;
 };
 
+/// HAC's rate path (config section `rate`, method.md §2.2-§2.6). Used only when a context and an
+/// entropy model are attached (AnchorModel::attach_rate).
+struct RateOptions {
+  double lambda = 0.001;         ///< weight of the rate term (bits per parameter)
+  double mask_lambda = 5e-4;     ///< weight of mean(sigmoid(mask logits))
+  double subset = 0.05;          ///< fraction of the visible active anchors the rate is measured on
+  QuantSteps q0;                 ///< Q0 of features, (activated) scaling, offsets
+  bool recompute_bounds = true;  ///< HAC: bounds recomputed at rate_start; false: frozen (SFA)
+  double lr_context_init = 5e-3, lr_context_final = 1e-5;          ///< grid (HAC encoding_xyz)
+  double lr_context_mlp_init = 5e-3, lr_context_mlp_final = 1e-5;  ///< HAC mlp_grid
+};
+
+/// What generate(..., for_training = true) does to the attributes (method.md §2.3). Only used
+/// when the rate path is attached; without it training always renders raw attributes.
+enum class QuantPhase {
+  kRaw,            ///< it <= quant_start
+  kFixedNoise,     ///< quant_start < it <= rate_start: + U(-1/2, 1/2) * Q0
+  kAdaptiveNoise,  ///< it > rate_start: + U(-1/2, 1/2) * Q (context, not detached) + rate term
+};
+
+/// The quantised attributes of a set of anchors (AnchorModel::quantize), row r = model anchor
+/// index[r]. Everything is float32 / int32 / bool on the CPU, detached.
+struct QuantizedAttributes {
+  torch::Tensor index;            ///< [A] int64: model anchor of each row (the evaluation order)
+  torch::Tensor active;           ///< [N] bool over all model anchors: any offset mask on
+  torch::Tensor positions;        ///< [A, 3] round(anchor / v) * v, float32 (v = float(voxel_size))
+  torch::Tensor positions01;      ///< [A, 3] (positions - min) / (max - min).clamp_min(1e-9)
+  torch::Tensor bounds;           ///< [2, 3] min, max (the model's bounds())
+  EntropyParams params;           ///< [A, ...] mu/sigma/q from predict_entropy_params(chunk 3000)
+  torch::Tensor feature_symbols;  ///< [A, Dc] int32
+  torch::Tensor scaling_symbols;  ///< [A, 6] int32 (of the activated scaling exp(scaling_raw))
+  torch::Tensor offset_symbols;   ///< [A, K, 3] int32 (zero where the offset mask is off)
+  torch::Tensor features;         ///< [A, Dc] dequantised: float(symbol) * q_f
+  torch::Tensor scaling;          ///< [A, 6] dequantised activated scaling: float(symbol) * q_s
+  torch::Tensor offsets;          ///< [A, K, 3] dequantised: float(symbol) * q_o (0 if masked)
+  torch::Tensor offset_masks;     ///< [A, K] bool
+};
+
 /// The neural Gaussians generated for one view, plus what the statistics need.
 struct NeuralGaussians {
   GaussianBatch batch;           ///< the kept Gaussians (opacity > 0)
@@ -69,6 +110,16 @@ struct NeuralGaussians {
   torch::Tensor selection;       ///< [M*K] bool: which of the visible anchors' Gaussians were kept
   torch::Tensor source;          ///< [G] int64: anchor * K + k of each kept Gaussian
   torch::Tensor input;           ///< [M, C] the opacity/cov MLP input (for tests)
+  /// The attributes of the visible anchors as used for this view (noised in the noise phases):
+  torch::Tensor used_features;  ///< [M, Dc] coded features
+  torch::Tensor used_scaling;   ///< [M, 6] activated scaling
+  torch::Tensor used_offsets;   ///< [M, K, 3]
+  torch::Tensor q_f, q_s, q_o;  ///< [M, 1] the noise steps; undefined when no noise was added
+  /// Rate phase only (kAdaptiveNoise, training): bits per coded parameter of the random subset
+  /// of visible active anchors x the active fraction of the visible anchors (method.md §2.5),
+  /// differentiable; undefined otherwise. rate_subset: anchors in the subset.
+  torch::Tensor bits_per_param;
+  int64_t rate_subset = 0;
 };
 
 /// What one growing/pruning step did.
@@ -111,8 +162,78 @@ class AnchorModel {
   torch::Tensor offsets() const;      ///< [N, K, 3]
   torch::Tensor scaling_raw() const;  ///< [N, 6]
   torch::Tensor mask_logits() const;  ///< [N, K]
-  /// Anchor positions normalised to [0,1] by the bounds fixed at initialisation (HAC formula).
+  /// Anchor positions normalised to [0,1] by bounds() (values outside are possible for anchors
+  /// grown outside them).
   torch::Tensor positions01() const;  ///< [N, 3]
+  /// [2, 3] float32 min, max (HAC update_anchor_bound: min x1.2 if < 0 else x0.8, max x1.2 if
+  /// > 0 else x0.8), computed at initialisation and by recompute_bounds().
+  torch::Tensor bounds() const;
+  void recompute_bounds();
+  /// Current binary offset masks (sigmoid(logit) > mask_threshold; all on without
+  /// use_offset_mask) [N, K] bool, and anchor activity (any mask on) [N] bool.
+  torch::Tensor offset_masks() const;
+  torch::Tensor active_anchors() const;
+  /// mean(sigmoid(mask logits)) over all N x K logits, differentiable (HAC mask loss, unweighted).
+  torch::Tensor mask_loss() const;
+  /// The Gaussian-generation MLPs by name (mlp_opacity.w1, .b1, .w2, .b2, mlp_cov.*, mlp_color.*,
+  /// and `appearance` when the effect is on), detached.
+  std::map<std::string, torch::Tensor> mlp_tensors() const;
+
+  // ---- Rate path (HAC, method.md §2) ----
+  /// Attaches a grid context (output width EntropyParamLayout{coded_dim, K}.width()) and an
+  /// entropy model. The context's parameters join the optimizer: the first tensor of
+  /// context->parameters() is the grid (schedule `context`, HAC encoding_xyz), the rest the
+  /// context MLP (schedule `context_mlp`, mlp_grid) - the hash_grid plugin's documented order.
+  /// Call before training and before loading a checkpoint.
+  Status attach_rate(std::shared_ptr<ContextModel> context, std::shared_ptr<EntropyModel> entropy,
+                     const RateOptions& options);
+  bool has_rate() const;
+  ContextModel* context() const;  ///< null without the rate path
+  EntropyModel* entropy() const;  ///< null without the rate path
+  const RateOptions& rate_options() const;
+  /// Phase of the training-time quantisation (set by the trainer every iteration).
+  void set_quant_phase(QuantPhase phase);
+  QuantPhase quant_phase() const;
+  /// The generator the noise and the rate subset are drawn from (the trainer's, so resuming is
+  /// bit-identical). Without one, the global generator is used.
+  void set_generator(torch::Generator gen);
+
+  /// Test-time quantisation (method.md §2.2-§2.3), the canonical recipe the codec reproduces:
+  ///  1. rows: `index` (int64 model anchor indices, in evaluation order) or, when undefined, the
+  ///     active anchors (any offset mask on) in increasing index order;
+  ///  2. positions = round(anchor / v) * v in float32 with v = float(voxel_size());
+  ///     positions01 = (positions - bounds[0]) / (bounds[1] - bounds[0]).clamp_min(1e-9);
+  ///  3. params = predict_entropy_params(context, positions01, {coded_dim, K}, q0, 3000) - the
+  ///     context evaluated on these rows only, in chunks of 3000 in row order;
+  ///  4. x in {features [A, Dc], exp(scaling_raw) [A, 6], offsets [A, K, 3]} with its step q
+  ///     ([A, 1], broadcast) and m = float32 mean of that attribute over ALL N model anchors:
+  ///     xc = min(max(x, m - 15000 q), m + 15000 q); k = round(xc / q) (half to even), non-finite
+  ///     k -> 0, clamped to +-2^30; symbol = int32(k); value = float(symbol) * q;
+  ///     offsets whose mask is off get symbol 0 and value 0.
+  /// Deterministic for any thread count. Does not change the model.
+  QuantizedAttributes quantize(ContextModel& context, const QuantSteps& q0,
+                               const torch::Tensor& index = {}) const;
+  /// The same with the attached context and rate_options().q0 (requires has_rate()).
+  QuantizedAttributes quantize(const torch::Tensor& index = {}) const;
+  /// Makes generate() render exactly the rows of `q` (their snapped positions, dequantised
+  /// values and masks; other anchors are not rendered; NeuralGaussians::visible/source then
+  /// index q's rows) until clear_quantized(). For rendering only (not for training); growing or
+  /// pruning clears it. A model from from_decoded() always renders its decoded values.
+  void set_quantized(const QuantizedAttributes& q);
+  void clear_quantized();
+  bool is_quantized() const;
+
+  /// A render-only model from decoded attributes (no cameras, no optimizer state, no rate path):
+  /// positions [A, 3] float32 (as QuantizedAttributes::positions), features [A, Dc],
+  /// scaling_activated [A, 6], offsets [A, K, 3], offset_masks [A, K] bool, mlps by name as
+  /// mlp_tensors() returns them, bounds [2, 3], voxel_size. It renders exactly like the source
+  /// model after set_quantized() with the same rows.
+  static StatusOr<std::unique_ptr<AnchorModel>> from_decoded(
+      const AnchorModelOptions& options, std::shared_ptr<FeatureModel> features,
+      const torch::Tensor& positions, const torch::Tensor& features_values,
+      const torch::Tensor& scaling_activated, const torch::Tensor& offsets,
+      const torch::Tensor& offset_masks, const std::map<std::string, torch::Tensor>& mlps,
+      const torch::Tensor& bounds, double voxel_size);
 
   /// Generates the neural Gaussians of the anchors visible from `camera` (method.md §1.2).
   /// `camera_index` selects the appearance embedding (training image index; ignored when the
@@ -142,7 +263,8 @@ class AnchorModel {
   std::map<std::string, torch::Tensor> state_dict() const;
   Status load_state_dict(const std::map<std::string, torch::Tensor>& state);
 
-  /// All trainable tensors by group name (feature, offset, scaling, mask, mlp_*, appearance).
+  /// All trainable tensors by group name (feature, offset, scaling, mask, mlp_*, appearance,
+  /// feature_model.i, context.grid.i, context.mlp.i).
   std::vector<std::pair<std::string, torch::Tensor>> named_parameters() const;
 
   struct Impl;

@@ -23,6 +23,8 @@ struct TrainingProgress {
   double iterations_per_second = 0;  ///< over the last report interval
   double elapsed_seconds = 0;        ///< since this run (or resume) started
   double eta_seconds = 0;
+  bool has_rate = false;      ///< rate phase of the rate path: the next field is set
+  double bits_per_param = 0;  ///< rate term before lambda (bpp + hash share, method.md §2.5)
 };
 
 class ProgressCallback {

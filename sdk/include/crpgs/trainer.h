@@ -30,8 +30,11 @@ struct Schedule {
   int update_interval = 100;
   int update_until = 15000;
   int pause_from = 3000, pause_until = 4000;
-  int quant_start = 3000;  ///< HAC: noise-quantised attributes from here (rate path)
-  int rate_start = 10000;  ///< HAC: rate and mask terms after this
+  /// Rate path only (method.md §2.3): raw attributes for it <= quant_start, + U(-1/2,1/2)*Q0 up
+  /// to rate_start, bounds recomputed at rate_start (rate.recompute_bounds), adaptive-step noise
+  /// plus rate and mask terms for it > rate_start.
+  int quant_start = 3000;
+  int rate_start = 10000;
   /// HAC's 30k schedule.
   static Schedule full();
   /// Every boundary (and the iteration count) of full() multiplied by `factor` (0 < f <= 1),
@@ -61,6 +64,17 @@ struct EvalResult {
   double mean_psnr = 0;
   double mean_ssim = 0;
   double seconds_per_view = 0;  ///< rendering only
+};
+
+/// The rate path's terms of the last iteration (rate phase only; `on` false otherwise).
+struct RateReport {
+  bool on = false;
+  double bits_per_param = 0;   ///< subset bpp x active fraction (method.md §2.5)
+  double hash_bits = 0;        ///< B_h of the context
+  double rate = 0;             ///< bits_per_param + hash_bits / (N_all (Dc + 6 + 3K)); x lambda
+  double mask_loss = 0;        ///< mean(sigmoid(mask logits)); x mask_lambda
+  int64_t subset = 0;          ///< anchors the rate was measured on
+  double active_fraction = 0;  ///< active anchors / all anchors
 };
 
 /// Wall-clock split of the iterations run so far (seconds, summed).
@@ -106,6 +120,7 @@ class Trainer {
   const TrainOptions& options() const { return options_; }
   const StepTimes& times() const { return times_; }
   int64_t last_gaussian_count() const { return last_gaussians_; }
+  const RateReport& last_rate() const { return last_rate_; }
 
  private:
   int view_for_iteration(int iteration) const;
@@ -118,17 +133,29 @@ class Trainer {
   StepTimes times_;
   int64_t last_gaussians_ = 0;
   double last_l1_ = 0;
+  RateReport last_rate_;
   std::vector<torch::Tensor> train_images_;  // [H, W, 3] per train view
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip
 /// (method.md §4); writes `<png_dir>/<name>.png` (render) and `<name>_gt.png` when png_dir is set.
+/// A model with the rate path that is not already quantised is evaluated quantised
+/// (model.quantize(), HAC's test-time attributes) and left as it was.
 StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
                                     const std::vector<View>& views, const std::string& png_dir);
 
 /// Reads the `scene`, `model` and `train` sections of a resolved config.
 StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved);
 StatusOr<TrainOptions> train_options_from_config(const Config& resolved);
+/// Reads the `rate` section.
+StatusOr<RateOptions> rate_options_from_config(const Config& resolved);
+
+/// The rate path's components (both null: plain Scaffold-GS training, nothing rate-related).
+struct RateSetup {
+  std::shared_ptr<ContextModel> context;
+  std::shared_ptr<EntropyModel> entropy;
+  RateOptions options;
+};
 
 struct SetupOptions {
   std::string output_dir;  ///< overrides nothing in the config; where checkpoints go
@@ -136,7 +163,9 @@ struct SetupOptions {
 };
 
 /// Wires everything from a resolved config: dataset (or the synthetic scene), rasterizer and
-/// feature model from the registry, the anchor model, the trainer; optionally resumes.
+/// feature model from the registry, the anchor model, the trainer; optionally resumes. With both
+/// a `context` and an `entropy` section the rate path is attached (config `rate`); with only
+/// one of them it is an error.
 StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
                                                   const ComponentRegistry& registry,
                                                   const SetupOptions& setup);
@@ -146,7 +175,8 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
                                                 const AnchorModelOptions& model_options,
                                                 Dataset dataset,
                                                 std::shared_ptr<Rasterizer> rasterizer,
-                                                std::shared_ptr<FeatureModel> features);
+                                                std::shared_ptr<FeatureModel> features,
+                                                const RateSetup& rate = RateSetup());
 
 /// Differentiable SSIM (11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero
 /// padding, mean over the map). a, b: [H, W, C].

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 namespace crpgs {
 
@@ -48,6 +49,35 @@ torch::Tensor ste_mask(const torch::Tensor& logits, double threshold) {
   return ((s > threshold).to(s.dtype()) - s).detach() + s;
 }
 
+// HAC update_anchor_bound: per-axis min/max expanded multiplicatively about the origin.
+torch::Tensor hac_bounds(const torch::Tensor& anchor) {  // [N, 3] -> [2, 3]
+  if (anchor.size(0) == 0) return torch::stack({torch::zeros({3}), torch::ones({3})});
+  auto mn = std::get<0>(anchor.min(0)), mx = std::get<0>(anchor.max(0));
+  mn = torch::where(mn < 0, mn * 1.2, mn * 0.8);
+  mx = torch::where(mx > 0, mx * 1.2, mx * 0.8);
+  return torch::stack({mn, mx});
+}
+
+torch::Tensor normalise(const torch::Tensor& pos, const torch::Tensor& bounds) {
+  auto lo = bounds[0], hi = bounds[1];
+  return (pos - lo) / (hi - lo).clamp_min(1e-9);
+}
+
+// Mean of all elements, summed serially in double: identical for any thread count.
+float serial_mean(const torch::Tensor& t) {
+  auto c = t.detach().to(torch::kFloat).contiguous();
+  const float* d = c.data_ptr<float>();
+  double s = 0;
+  for (int64_t i = 0; i < c.numel(); ++i) s += d[i];
+  return c.numel() ? float(s / double(c.numel())) : 0.f;
+}
+
+// x clamped to mean +- 15000 q (q broadcasts; method.md §2.2).
+torch::Tensor clamp_about(const torch::Tensor& x, float mean, const torch::Tensor& q) {
+  auto r = q * 15000.0;
+  return torch::min(torch::max(x, mean - r), mean + r);
+}
+
 // Voxel keys for set membership; coordinates are far inside +-2^20 for any sane voxel size.
 torch::Tensor cell_keys(const torch::Tensor& cells) {  // [N, 3] int64 -> [N]
   auto c = cells.clamp(-(int64_t(1) << 20) + 1, (int64_t(1) << 20) - 1) + (int64_t(1) << 20);
@@ -65,6 +95,17 @@ struct ParamGroup {
   int64_t step = 0;
   double lr = 0;
   bool per_anchor = false;  // rows follow the anchors (grown/pruned with them)
+  bool external = false;    // owned by a component (updated in place, loaded with copy_)
+};
+
+/// What generate() renders instead of the parameters (quantised or decoded attributes).
+struct RenderValues {
+  torch::Tensor positions;    // [A, 3]
+  torch::Tensor positions01;  // [A, 3]
+  torch::Tensor features;     // [A, Dc]
+  torch::Tensor scaling;      // [A, 6] activated
+  torch::Tensor offsets;      // [A, K, 3]
+  torch::Tensor mask;         // [A, K] float 0/1
 };
 
 struct AnchorModel::Impl {
@@ -79,6 +120,14 @@ struct AnchorModel::Impl {
   int i_feat = -1, i_offset = -1, i_scaling = -1, i_mask = -1, i_app = -1;
   Mlp mlp_opacity, mlp_color, mlp_cov;
   int mlp_first = -1;  // index of the first MLP group (12 tensors follow)
+  // Rate path (method.md §2).
+  std::shared_ptr<ContextModel> context;
+  std::shared_ptr<EntropyModel> entropy;
+  RateOptions rate;
+  QuantPhase phase = QuantPhase::kRaw;
+  torch::Generator gen;
+  std::optional<RenderValues> over;     // set_quantized
+  std::optional<RenderValues> decoded;  // from_decoded: always rendered
   // Statistics (method.md §1.4).
   torch::Tensor opacity_accum, anchor_demon;      // [N]
   torch::Tensor offset_grad_accum, offset_denom;  // [N*K]
@@ -111,6 +160,22 @@ struct AnchorModel::Impl {
     offset_denom = torch::zeros({n * K});
   }
   void lr_for(ParamGroup& g, int it) const;
+  c10::optional<at::Generator> gen_opt() const {
+    return gen.defined() ? c10::optional<at::Generator>(gen) : c10::nullopt;
+  }
+  const RenderValues* render_values() const {
+    return over ? &*over : decoded ? &*decoded : nullptr;
+  }
+  void add_external(const std::string& name, const std::string& schedule, const torch::Tensor& t) {
+    ParamGroup g;
+    g.name = name;
+    g.schedule = schedule;
+    g.param = t;  // owned by the component; updated in place
+    g.m = torch::zeros_like(t);
+    g.v = torch::zeros_like(t);
+    g.external = true;
+    groups.push_back(std::move(g));
+  }
   void append_rows(ParamGroup& g, const torch::Tensor& rows) {
     g.param = torch::cat({g.param.detach(), rows.to(g.param.dtype())}, 0).requires_grad_(true);
     g.m = torch::cat({g.m, torch::zeros_like(rows)}, 0);
@@ -151,6 +216,10 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
     g.lr = log_lerp(lr.mlp_color_init, lr.mlp_color_final, it, T);
   else if (g.schedule == "appearance")
     g.lr = log_lerp(lr.appearance_init, lr.appearance_final, it, T);
+  else if (g.schedule == "context")
+    g.lr = log_lerp(rate.lr_context_init, rate.lr_context_final, it, T);
+  else if (g.schedule == "context_mlp")
+    g.lr = log_lerp(rate.lr_context_mlp_init, rate.lr_context_mlp_final, it, T);
   else
     g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
 }
@@ -282,11 +351,8 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
   impl->anchor = uniq.to(torch::kFloat) * float(v);
   const int64_t N = impl->anchor.size(0);
 
-  // 4. Bounds (HAC update_anchor_bound), fixed from here on.
-  auto mn = std::get<0>(impl->anchor.min(0)), mx = std::get<0>(impl->anchor.max(0));
-  mn = torch::where(mn < 0, mn * 1.2, mn * 0.8);
-  mx = torch::where(mx > 0, mx * 1.2, mx * 0.8);
-  impl->bounds = torch::stack({mn, mx});
+  // 4. Bounds (HAC update_anchor_bound); the rate path may recompute them at rate_start.
+  impl->bounds = hac_bounds(impl->anchor);
 
   // 5. Per-anchor parameters.
   auto d2 = mean_sq_dist_3nn(impl->anchor).clamp_min(1e-7);
@@ -326,15 +392,8 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
   }
   // 7. The feature model's own parameters (e.g. SFA's hash grid) share the optimizer.
   int fm_index = 0;
-  for (auto& t : impl->features_model->parameters()) {
-    ParamGroup g;
-    g.name = "feature_model." + std::to_string(fm_index++);
-    g.schedule = "feature_model";
-    g.param = t;  // owned by the component; updated in place
-    g.m = torch::zeros_like(t);
-    g.v = torch::zeros_like(t);
-    impl->groups.push_back(std::move(g));
-  }
+  for (auto& t : impl->features_model->parameters())
+    impl->add_external("feature_model." + std::to_string(fm_index++), "feature_model", t);
   impl->reset_stats();
   auto model = std::unique_ptr<AnchorModel>(new AnchorModel(std::move(impl)));
   model->update_learning_rates(0);
@@ -378,8 +437,228 @@ torch::Tensor AnchorModel::mask_logits() const {
   return impl_->p(impl_->i_mask);
 }
 torch::Tensor AnchorModel::positions01() const {
-  auto lo = impl_->bounds[0], hi = impl_->bounds[1];
-  return (impl_->anchor - lo) / (hi - lo).clamp_min(1e-9);
+  return normalise(impl_->anchor, impl_->bounds);
+}
+torch::Tensor AnchorModel::bounds() const {
+  return impl_->bounds;
+}
+void AnchorModel::recompute_bounds() {
+  impl_->bounds = hac_bounds(impl_->anchor);
+}
+torch::Tensor AnchorModel::offset_masks() const {
+  const Impl& m = *impl_;
+  if (!m.opt.use_offset_mask) return torch::ones({m.anchor.size(0), m.K}, torch::kBool);
+  return torch::sigmoid(m.p(m.i_mask).detach()) > m.opt.mask_threshold;
+}
+torch::Tensor AnchorModel::active_anchors() const {
+  return offset_masks().any(1);
+}
+torch::Tensor AnchorModel::mask_loss() const {
+  return torch::sigmoid(impl_->p(impl_->i_mask)).mean();
+}
+std::map<std::string, torch::Tensor> AnchorModel::mlp_tensors() const {
+  std::map<std::string, torch::Tensor> out;
+  for (int k = 0; k < 12; ++k) {
+    const auto& g = impl_->groups[size_t(impl_->mlp_first + k)];
+    out[g.name] = g.param.detach();
+  }
+  if (impl_->i_app >= 0) out["appearance"] = impl_->p(impl_->i_app).detach();
+  return out;
+}
+
+Status AnchorModel::attach_rate(std::shared_ptr<ContextModel> context,
+                                std::shared_ptr<EntropyModel> entropy, const RateOptions& options) {
+  Impl& m = *impl_;
+  if (!context || !entropy)
+    return Status(StatusCode::kInvalidArgument, "rate path: needs a context and an entropy model");
+  if (m.context) return Status(StatusCode::kInvalidArgument, "rate path: already attached");
+  const EntropyParamLayout layout{m.features_model->coded_dim(), m.K};
+  if (context->output_dim() != layout.width())
+    return Status(StatusCode::kInvalidArgument,
+                  "rate path: context '" + context->type_name() + "' outputs " +
+                      std::to_string(context->output_dim()) +
+                      " values per anchor, the entropy "
+                      "parameters need " +
+                      std::to_string(layout.width()) + " (2*(Dc + 6 + 3K) + 3)");
+  if (!(options.subset > 0 && options.subset <= 1))
+    return Status(StatusCode::kInvalidArgument, "rate.subset must be in (0, 1]");
+  m.context = std::move(context);
+  m.entropy = std::move(entropy);
+  m.rate = options;
+  auto params = m.context->parameters();
+  for (size_t i = 0; i < params.size(); ++i) {
+    if (i == 0)
+      m.add_external("context.grid.0", "context", params[i]);
+    else
+      m.add_external("context.mlp." + std::to_string(i - 1), "context_mlp", params[i]);
+  }
+  update_learning_rates(0);
+  return OkStatus();
+}
+bool AnchorModel::has_rate() const {
+  return impl_->context != nullptr;
+}
+ContextModel* AnchorModel::context() const {
+  return impl_->context.get();
+}
+EntropyModel* AnchorModel::entropy() const {
+  return impl_->entropy.get();
+}
+const RateOptions& AnchorModel::rate_options() const {
+  return impl_->rate;
+}
+void AnchorModel::set_quant_phase(QuantPhase phase) {
+  impl_->phase = phase;
+}
+QuantPhase AnchorModel::quant_phase() const {
+  return impl_->phase;
+}
+void AnchorModel::set_generator(torch::Generator gen) {
+  impl_->gen = std::move(gen);
+}
+
+QuantizedAttributes AnchorModel::quantize(const torch::Tensor& index) const {
+  TORCH_CHECK(impl_->context, "quantize: no rate path attached");
+  return quantize(*impl_->context, impl_->rate.q0, index);
+}
+
+QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantSteps& q0,
+                                          const torch::Tensor& index) const {
+  torch::NoGradGuard ng;
+  const Impl& m = *impl_;
+  const int64_t K = m.K;
+  QuantizedAttributes q;
+  const auto masks = offset_masks();  // [N, K]
+  q.active = masks.any(1);
+  q.index = index.defined() ? index.to(torch::kLong) : q.active.nonzero().squeeze(1);
+  const float v = float(m.voxel);
+  const auto vt = torch::tensor(v);
+  q.positions = torch::round(m.anchor.index_select(0, q.index) / vt) * vt;  // [A, 3]
+  q.bounds = m.bounds.clone();
+  q.positions01 = normalise(q.positions, q.bounds);
+  const EntropyParamLayout layout{m.features_model->coded_dim(), K};
+  q.params = predict_entropy_params(context, q.positions01, layout, q0, 3000);
+  for (auto* t : {&q.params.mu_f, &q.params.sigma_f, &q.params.mu_s, &q.params.sigma_s,
+                  &q.params.mu_o, &q.params.sigma_o, &q.params.q_f, &q.params.q_s, &q.params.q_o})
+    *t = t->detach().contiguous();
+  auto quant = [](const torch::Tensor& x, float mean, const torch::Tensor& step, torch::Tensor* sym,
+                  torch::Tensor* val) {
+    auto k = torch::round(clamp_about(x, mean, step) / step);
+    k = torch::nan_to_num(k, 0.0, 0.0, 0.0).clamp(-double(1 << 30), double(1 << 30));
+    *sym = k.to(torch::kInt);
+    *val = sym->to(torch::kFloat) * step;
+  };
+  const auto feat = m.p(m.i_feat).detach();
+  const auto scal = torch::exp(m.p(m.i_scaling).detach());
+  const auto offs = m.p(m.i_offset).detach();
+  quant(feat.index_select(0, q.index), serial_mean(feat), q.params.q_f, &q.feature_symbols,
+        &q.features);
+  quant(scal.index_select(0, q.index), serial_mean(scal), q.params.q_s, &q.scaling_symbols,
+        &q.scaling);
+  quant(offs.index_select(0, q.index), serial_mean(offs), q.params.q_o.unsqueeze(2),
+        &q.offset_symbols, &q.offsets);
+  q.offset_masks = masks.index_select(0, q.index);
+  const auto keep = q.offset_masks.unsqueeze(2);  // [A, K, 1]
+  q.offset_symbols = q.offset_symbols.masked_fill(~keep, 0);
+  q.offsets = q.offsets.masked_fill(~keep, 0.f);
+  return q;
+}
+
+void AnchorModel::set_quantized(const QuantizedAttributes& q) {
+  RenderValues r;
+  r.positions = q.positions;
+  r.positions01 = q.positions01;
+  r.features = q.features;
+  r.scaling = q.scaling;
+  r.offsets = q.offsets;
+  r.mask = q.offset_masks.to(torch::kFloat);
+  impl_->over = std::move(r);
+}
+void AnchorModel::clear_quantized() {
+  impl_->over.reset();
+}
+bool AnchorModel::is_quantized() const {
+  return impl_->render_values() != nullptr;
+}
+
+StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::from_decoded(
+    const AnchorModelOptions& options, std::shared_ptr<FeatureModel> features,
+    const torch::Tensor& positions, const torch::Tensor& features_values,
+    const torch::Tensor& scaling_activated, const torch::Tensor& offsets,
+    const torch::Tensor& offset_masks, const std::map<std::string, torch::Tensor>& mlps,
+    const torch::Tensor& bounds, double voxel_size) {
+  auto bad = [](const std::string& msg) {
+    return Status(StatusCode::kInvalidArgument, "decoded anchor model: " + msg);
+  };
+  if (!features) return bad("no feature model");
+  const int64_t K = options.n_offsets, A = positions.defined() ? positions.size(0) : -1;
+  const int64_t dc = features->coded_dim();
+  auto shape_is = [](const torch::Tensor& t, std::vector<int64_t> s) {
+    return t.defined() && t.sizes() == c10::IntArrayRef(s);
+  };
+  if (!shape_is(positions, {A, 3})) return bad("positions must be [A, 3]");
+  if (!shape_is(features_values, {A, dc}))
+    return bad("features must be [A, " + std::to_string(dc) + "]");
+  if (!shape_is(scaling_activated, {A, 6})) return bad("scaling must be [A, 6]");
+  if (!shape_is(offsets, {A, K, 3})) return bad("offsets must be [A, K, 3]");
+  if (!shape_is(offset_masks, {A, K})) return bad("offset masks must be [A, K]");
+  if (!shape_is(bounds, {2, 3})) return bad("bounds must be [2, 3]");
+  const SceneEffects& fx = options.effects;
+  const int64_t in =
+      features->feature_dim() + (fx.view_dependent ? 3 : 0) + (fx.distance_input ? 1 : 0);
+  const int64_t H = options.hidden_dim;
+  const std::vector<std::pair<std::string, int64_t>> mlp_in = {
+      {"mlp_opacity", in}, {"mlp_cov", in}, {"mlp_color", in + fx.appearance_dim}};
+  const std::map<std::string, int64_t> mlp_out = {
+      {"mlp_opacity", K}, {"mlp_cov", 7 * K}, {"mlp_color", 3 * K}};
+  auto impl = std::make_unique<Impl>();
+  impl->opt = options;
+  impl->features_model = std::move(features);
+  impl->K = int(K);
+  impl->voxel = voxel_size;
+  auto f32 = [](const torch::Tensor& t) { return t.detach().to(torch::kFloat).contiguous(); };
+  impl->anchor = f32(positions);
+  impl->bounds = f32(bounds);
+  impl->add_group("feature", "feature", f32(features_values), true);
+  impl->i_feat = 0;
+  impl->add_group("offset", "offset", f32(offsets), true);
+  impl->i_offset = 1;
+  impl->add_group("scaling", "scaling", torch::log(f32(scaling_activated)), true);
+  impl->i_scaling = 2;
+  // Logits whose sigmoid is clearly on either side of any threshold in (0.0001, 0.9999).
+  impl->add_group("mask", "mask", offset_masks.to(torch::kBool).to(torch::kFloat) * 20 - 10, true);
+  impl->i_mask = 3;
+  impl->mlp_first = int(impl->groups.size());
+  for (const auto& [name, in_dim] : mlp_in) {
+    const int64_t out = mlp_out.at(name);
+    const std::vector<std::pair<std::string, std::vector<int64_t>>> parts = {
+        {".w1", {H, in_dim}}, {".b1", {H}}, {".w2", {out, H}}, {".b2", {out}}};
+    for (const auto& [suffix, shape] : parts) {
+      auto it = mlps.find(name + suffix);
+      if (it == mlps.end()) return bad("missing MLP tensor '" + name + suffix + "'");
+      if (!shape_is(it->second, shape))
+        return bad("MLP tensor '" + name + suffix + "' has the wrong shape");
+      impl->add_group(name + suffix, name, f32(it->second), false);
+    }
+  }
+  impl->bind_mlps();
+  if (fx.appearance_dim > 0) {
+    auto it = mlps.find("appearance");
+    if (it == mlps.end() || it->second.dim() != 2 || it->second.size(1) != fx.appearance_dim)
+      return bad("missing or malformed 'appearance' embedding");
+    impl->i_app = int(impl->groups.size());
+    impl->add_group("appearance", "appearance", f32(it->second), false);
+  }
+  RenderValues r;
+  r.positions = impl->anchor;
+  r.positions01 = normalise(impl->anchor, impl->bounds);
+  r.features = impl->p(impl->i_feat).detach();
+  r.scaling = f32(scaling_activated);
+  r.offsets = impl->p(impl->i_offset).detach();
+  r.mask = offset_masks.to(torch::kFloat);
+  impl->decoded = std::move(r);
+  impl->reset_stats();
+  return std::unique_ptr<AnchorModel>(new AnchorModel(std::move(impl)));
 }
 
 NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
@@ -388,17 +667,81 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   Impl& m = *impl_;
   const int64_t K = m.K;
   NeuralGaussians out;
-  auto scaling = torch::exp(m.p(m.i_scaling));  // [N, 6]
+  const RenderValues* rv = m.render_values();
+  const auto& anchor = rv ? rv->positions : m.anchor;
+  auto scaling = rv ? rv->scaling : torch::exp(m.p(m.i_scaling));  // [N, 6]
   {
     torch::NoGradGuard ng;
-    out.visible = rasterizer.visible_anchors(m.anchor, scaling.index({Slice(), Slice(0, 3)}),
-                                             camera, settings);
+    out.visible =
+        rasterizer.visible_anchors(anchor, scaling.index({Slice(), Slice(0, 3)}), camera, settings);
   }
   auto idx = out.visible.nonzero().squeeze(1);  // [M]
   const int64_t M = idx.size(0);
-  auto anchor_v = m.anchor.index_select(0, idx);  // [M, 3]
-  auto feat = m.features_model->forward(m.p(m.i_feat).index_select(0, idx),
-                                        positions01().index_select(0, idx));  // [M, F]
+  auto anchor_v = anchor.index_select(0, idx);                                 // [M, 3]
+  auto pos01_v = (rv ? rv->positions01 : positions01()).index_select(0, idx);  // [M, 3]
+  auto feat_c = (rv ? rv->features : m.p(m.i_feat)).index_select(0, idx);      // [M, Dc]
+  auto scal_v = scaling.index_select(0, idx);                                  // [M, 6]
+  auto offs_v = (rv ? rv->offsets : m.p(m.i_offset)).index_select(0, idx);     // [M, K, 3]
+  torch::Tensor mask_v;                                                        // [M, K]
+  if (rv)
+    mask_v = rv->mask.index_select(0, idx);
+  else if (m.opt.use_offset_mask)
+    mask_v = ste_mask(m.p(m.i_mask).index_select(0, idx), m.opt.mask_threshold);
+  // Training-time quantisation (method.md §2.3): uniform noise of one step.
+  if (for_training && !rv && m.context && m.phase != QuantPhase::kRaw) {
+    EntropyParams ep;
+    if (m.phase == QuantPhase::kFixedNoise) {
+      out.q_f = torch::full({M, 1}, m.rate.q0.feature);
+      out.q_s = torch::full({M, 1}, m.rate.q0.scaling);
+      out.q_o = torch::full({M, 1}, m.rate.q0.offset);
+    } else {
+      ep = split_entropy_params(m.context->forward(pos01_v), {m.features_model->coded_dim(), K},
+                                m.rate.q0);
+      out.q_f = ep.q_f;
+      out.q_s = ep.q_s;
+      out.q_o = ep.q_o;
+    }
+    auto noise = [&](const torch::Tensor& x) {
+      return torch::rand(x.sizes(), m.gen_opt(), x.options()) - 0.5;
+    };
+    feat_c = feat_c + noise(feat_c) * out.q_f;
+    scal_v = scal_v + noise(scal_v) * out.q_s;
+    offs_v = offs_v + noise(offs_v) * out.q_o.unsqueeze(2);
+    if (m.phase == QuantPhase::kAdaptiveNoise) {
+      // Rate on a random subset of the visible active anchors (method.md §2.5).
+      auto mask_r = mask_v.defined() ? mask_v : torch::ones({M, K});
+      auto active_v = (mask_r.detach() > 0.5).any(1);  // [M]
+      auto chosen = ((torch::rand({M}, m.gen_opt()) <= m.rate.subset) & active_v)
+                        .nonzero()
+                        .squeeze(1);  // [S]
+      const int64_t S = chosen.size(0);
+      out.rate_subset = S;
+      const double active_fraction = M > 0 ? active_v.sum().item<double>() / double(M) : 0.0;
+      if (S > 0) {
+        auto sel = [&](const torch::Tensor& t) { return t.index_select(0, chosen); };
+        auto bits = [&](const torch::Tensor& x, float mean, const torch::Tensor& mu,
+                        const torch::Tensor& sigma, const torch::Tensor& q) {
+          return m.entropy->bits(clamp_about(x, mean, q), mu, sigma, q);
+        };
+        auto q_f = sel(ep.q_f), q_s = sel(ep.q_s), q_o = sel(ep.q_o);
+        auto b_f =
+            bits(sel(feat_c), serial_mean(m.p(m.i_feat)), sel(ep.mu_f), sel(ep.sigma_f), q_f);
+        auto b_s = bits(sel(scal_v), serial_mean(torch::exp(m.p(m.i_scaling).detach())),
+                        sel(ep.mu_s), sel(ep.sigma_s), q_s);
+        auto b_o = bits(sel(offs_v).reshape({S, 3 * K}), serial_mean(m.p(m.i_offset)), sel(ep.mu_o),
+                        sel(ep.sigma_o), q_o);
+        b_o = b_o * sel(mask_r).unsqueeze(2).expand({S, K, 3}).reshape({S, 3 * K});
+        const double n_elem = double(S * (feat_c.size(1) + 6 + 3 * K));
+        out.bits_per_param = (b_f.sum() + b_s.sum() + b_o.sum()) / n_elem * active_fraction;
+      } else {
+        out.bits_per_param = torch::zeros({});
+      }
+    }
+  }
+  out.used_features = feat_c;
+  out.used_scaling = scal_v;
+  out.used_offsets = offs_v;
+  auto feat = m.features_model->forward(feat_c, pos01_v);  // [M, F]
   std::vector<torch::Tensor> parts{feat};
   const SceneEffects& fx = m.opt.effects;
   if (fx.view_dependent || fx.distance_input) {
@@ -412,8 +755,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   auto input = parts.size() == 1 ? feat : torch::cat(parts, 1);  // [M, C]
   out.input = input;
   auto opacity = torch::tanh(m.mlp_opacity.forward(input));  // [M, K]
-  if (m.opt.use_offset_mask)
-    opacity = opacity * ste_mask(m.p(m.i_mask).index_select(0, idx), m.opt.mask_threshold);
+  if (mask_v.defined()) opacity = opacity * mask_v;
   out.neural_opacity = opacity.detach();
   auto color_in = input;
   if (fx.appearance_dim > 0) {
@@ -429,9 +771,9 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   out.source = (idx.unsqueeze(1) * K + torch::arange(K, idx.options()))
                    .reshape({M * K})
                    .index_select(0, keep);
-  auto anchor_of = keep.div(K, "floor");                              // row in the visible set
-  auto sc = scaling.index_select(0, idx).index_select(0, anchor_of);  // [G, 6]
-  auto offs = m.p(m.i_offset).index_select(0, idx).reshape({M * K, 3}).index_select(0, keep);
+  auto anchor_of = keep.div(K, "floor");        // row in the visible set
+  auto sc = scal_v.index_select(0, anchor_of);  // [G, 6]
+  auto offs = offs_v.reshape({M * K, 3}).index_select(0, keep);
   auto cv = cov.index_select(0, keep);  // [G, 7]
   GaussianBatch& b = out.batch;
   b.means = anchor_v.index_select(0, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
@@ -528,6 +870,7 @@ int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor&
 AdjustReport AnchorModel::adjust_anchors(int check_interval, torch::Generator gen) {
   torch::NoGradGuard ng;
   Impl& m = *impl_;
+  m.over.reset();
   const int64_t K = m.K;
   AdjustReport rep;
   // 1. Grow from the average screen-space gradients of Gaussians seen often enough.
@@ -662,7 +1005,7 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
   for (auto& g : m.groups) {
     torch::Tensor p;
     CRPGS_RETURN_IF_ERROR(get("param." + g.name, p));
-    if (g.schedule == "feature_model") {
+    if (g.external) {
       g.param.copy_(p);  // the component owns the tensor
     } else {
       g.param = p.requires_grad_(true);

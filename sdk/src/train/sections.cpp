@@ -1,5 +1,6 @@
 /// @file sections.cpp
-/// @brief Schemas of the core (non-component) config sections: dataset, scene, model, train.
+/// @brief Schemas of the core (non-component) config sections: dataset, scene, model, train,
+/// rate.
 /// Torch-free (part of crpgs_base) so `crpgs config check` validates without building anything.
 #include "crpgs/config.h"
 
@@ -142,6 +143,39 @@ const std::vector<CoreSection>& core_sections() {
                  0, 10),
            range(P("lr_feature_model_final", T::kFloat, YAML::Node(0.00001),
                    "final feature-model lr"),
+                 0, 10),
+       })},
+      {"rate",
+       Schema({
+           range(P("lambda", T::kFloat, YAML::Node(0.001),
+                   "rate weight: lambda * (bits per parameter + hash bits share); used only "
+                   "with a `context` and an `entropy` component"),
+                 0, 1),
+           range(P("mask_lambda", T::kFloat, YAML::Node(0.0005),
+                   "offset-mask loss weight (mean sigmoid of the mask logits)"),
+                 0, 1),
+           range(P("subset", T::kFloat, YAML::Node(0.05),
+                   "fraction of the visible active anchors the rate is measured on"),
+                 1e-6, 1),
+           range(P("q0_feature", T::kFloat, YAML::Node(1.0),
+                   "initial quantisation step Q0, features"),
+                 1e-9, 1e3),
+           range(P("q0_scaling", T::kFloat, YAML::Node(0.001),
+                   "initial quantisation step Q0, activated scaling"),
+                 1e-9, 1e3),
+           range(
+               P("q0_offset", T::kFloat, YAML::Node(0.2), "initial quantisation step Q0, offsets"),
+               1e-9, 1e3),
+           P("recompute_bounds", T::kBool, YAML::Node(true),
+             "recompute the anchor bounds at rate_start (HAC); false keeps the initial ones"),
+           range(
+               P("lr_context", T::kFloat, YAML::Node(0.005), "context grid lr (HAC encoding_xyz)"),
+               0, 10),
+           range(P("lr_context_final", T::kFloat, YAML::Node(0.00001), "final context grid lr"), 0,
+                 10),
+           range(P("lr_context_mlp", T::kFloat, YAML::Node(0.005), "context MLP lr (HAC mlp_grid)"),
+                 0, 10),
+           range(P("lr_context_mlp_final", T::kFloat, YAML::Node(0.00001), "final context MLP lr"),
                  0, 10),
        })},
   };

@@ -122,6 +122,7 @@ Trainer::Trainer(TrainOptions options, Dataset dataset, std::shared_ptr<Rasteriz
       model_(std::move(model)),
       gen_(std::move(gen)) {
   for (const auto& v : dataset_.train) train_images_.push_back(image_to_tensor(v.image));
+  model_->set_generator(gen_);  // noise and rate subsets: checkpointed with the trainer's RNG
 }
 
 Trainer::~Trainer() = default;
@@ -148,6 +149,13 @@ StatusOr<double> Trainer::step() {
   RenderSettings settings;
   settings.background = model_->options().effects.background;
   model_->update_learning_rates(it);
+  const bool rate_path = model_->has_rate();
+  if (rate_path) {  // method.md §2.3
+    if (it == sc.rate_start && model_->rate_options().recompute_bounds) model_->recompute_bounds();
+    model_->set_quant_phase(it <= sc.quant_start  ? QuantPhase::kRaw
+                            : it <= sc.rate_start ? QuantPhase::kFixedNoise
+                                                  : QuantPhase::kAdaptiveNoise);
+  }
 
   auto t0 = Clock::now();
   NeuralGaussians ng = model_->generate(view.camera, v, *rasterizer_, settings, true);
@@ -160,6 +168,23 @@ StatusOr<double> Trainer::step() {
   auto loss = (1.0 - options_.lambda_dssim) * l1 + options_.lambda_dssim * (1.0 - ssim);
   if (ng.batch.scales.size(0) > 0)
     loss = loss + options_.lambda_scaling * ng.batch.scales.prod(1).mean();
+  last_rate_ = RateReport();
+  if (ng.bits_per_param.defined()) {  // rate phase (method.md §2.5, §2.6)
+    const RateOptions& ro = model_->rate_options();
+    const double denom = double(model_->num_anchors()) *
+                         double(model_->features().size(1) + 6 + 3 * model_->n_offsets());
+    auto hash_bits = model_->context()->parameter_bits().to(torch::kFloat);
+    auto rate = ng.bits_per_param + hash_bits / denom;
+    auto mask_loss = model_->mask_loss();
+    loss = loss + ro.lambda * rate + ro.mask_lambda * mask_loss;
+    last_rate_.on = true;
+    last_rate_.bits_per_param = ng.bits_per_param.item<double>();
+    last_rate_.hash_bits = hash_bits.item<double>();
+    last_rate_.rate = rate.item<double>();
+    last_rate_.mask_loss = mask_loss.item<double>();
+    last_rate_.subset = ng.rate_subset;
+    last_rate_.active_fraction = model_->active_anchors().to(torch::kDouble).mean().item<double>();
+  }
   auto t3 = Clock::now();
   if (loss.requires_grad()) loss.backward();
   auto t4 = Clock::now();
@@ -241,8 +266,31 @@ Status Trainer::load_checkpoint(const std::string& path) {
   return OkStatus();
 }
 
+namespace {
+// Renders with HAC's test-time quantised attributes while alive (rate path only).
+class QuantizedScope {
+ public:
+  explicit QuantizedScope(AnchorModel& m) : m_(m) {
+    if (m.has_rate() && !m.is_quantized()) {
+      m.set_quantized(m.quantize());
+      active_ = true;
+    }
+  }
+  ~QuantizedScope() {
+    if (active_) m_.clear_quantized();
+  }
+  QuantizedScope(const QuantizedScope&) = delete;
+  QuantizedScope& operator=(const QuantizedScope&) = delete;
+
+ private:
+  AnchorModel& m_;
+  bool active_ = false;
+};
+}  // namespace
+
 double Trainer::view_psnr(const View& view) {
   torch::NoGradGuard no_grad;
+  QuantizedScope quantized(*model_);
   RenderSettings settings;
   settings.background = model_->options().effects.background;
   NeuralGaussians ng = model_->generate(view.camera, -1, *rasterizer_, settings, false);
@@ -290,6 +338,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
       p.iterations_per_second = rate;
       p.elapsed_seconds = seconds_since(start);
       p.eta_seconds = rate > 0 ? (sc.iterations - it) / rate : 0;
+      p.has_rate = last_rate_.on;
+      p.bits_per_param = last_rate_.rate;
       if (held_out && options_.eval_interval > 0 &&
           (it % options_.eval_interval == 0 || it == sc.iterations)) {
         p.has_test_psnr = true;
@@ -324,6 +374,7 @@ StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
   torch::NoGradGuard no_grad;
   EvalResult res;
   if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no views");
+  QuantizedScope quantized(model);
   if (!png_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(png_dir, ec);
@@ -461,11 +512,35 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
   return o;
 }
 
+StatusOr<RateOptions> rate_options_from_config(const Config& resolved) {
+  RateOptions o;
+  try {
+    const YAML::Node r = resolved.section("rate");
+    o.lambda = get(r, "lambda", o.lambda);
+    o.mask_lambda = get(r, "mask_lambda", o.mask_lambda);
+    o.subset = get(r, "subset", o.subset);
+    o.q0.feature = get(r, "q0_feature", o.q0.feature);
+    o.q0.scaling = get(r, "q0_scaling", o.q0.scaling);
+    o.q0.offset = get(r, "q0_offset", o.q0.offset);
+    o.recompute_bounds = get(r, "recompute_bounds", o.recompute_bounds);
+    o.lr_context_init = get(r, "lr_context", o.lr_context_init);
+    o.lr_context_final = get(r, "lr_context_final", o.lr_context_final);
+    o.lr_context_mlp_init = get(r, "lr_context_mlp", o.lr_context_mlp_init);
+    o.lr_context_mlp_final = get(r, "lr_context_mlp_final", o.lr_context_mlp_final);
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidConfig, std::string("rate config: ") + e.what());
+  }
+  if (!(o.subset > 0 && o.subset <= 1))
+    return Status(StatusCode::kInvalidConfig, "rate.subset must be in (0, 1]");
+  return o;
+}
+
 StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_options,
                                                 const AnchorModelOptions& model_options,
                                                 Dataset dataset,
                                                 std::shared_ptr<Rasterizer> rasterizer,
-                                                std::shared_ptr<FeatureModel> features) {
+                                                std::shared_ptr<FeatureModel> features,
+                                                const RateSetup& rate) {
   if (!rasterizer) return Status(StatusCode::kInvalidArgument, "make_trainer: no rasterizer");
   if (dataset.train.empty())
     return Status(StatusCode::kInvalidArgument,
@@ -481,6 +556,8 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
   for (const auto& v : dataset.train) init.train_cameras.push_back(v.camera);
   auto model = AnchorModel::create(model_options, std::move(features), init, gen);
   if (!model.ok()) return model.status();
+  if (rate.context || rate.entropy)
+    CRPGS_RETURN_IF_ERROR((*model)->attach_rate(rate.context, rate.entropy, rate.options));
   return std::make_unique<Trainer>(train_options, std::move(dataset), std::move(rasterizer),
                                    std::move(model).value(), gen);
 }
@@ -498,7 +575,7 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
                           : std::max(1, int(std::thread::hardware_concurrency()));
   at::set_num_threads(threads);
   // 3. Components: rasterizer and feature model from the registry.
-  const crpgs_create_args args = create_args_for(resolved);
+  crpgs_create_args args = create_args_for(resolved);
   auto block = [&](const char* key, const char* type) {
     YAML::Node b = resolved.section(key);
     if (!b) {
@@ -512,6 +589,22 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(
       std::shared_ptr<FeatureModel> features,
       create_component<FeatureModel>(registry, block("features", "identity"), args));
+  // The rate path (HAC): a grid context and an entropy model, both or neither.
+  RateSetup rate;
+  {
+    const YAML::Node c = resolved.section("context"), e = resolved.section("entropy");
+    if (bool(c) != bool(e))
+      return Status(StatusCode::kInvalidConfig,
+                    std::string("the rate path needs both a `context` and an `entropy` section; "
+                                "only `") +
+                        (c ? "context" : "entropy") + "` is set");
+    if (c) {
+      args.coded_dim = int32_t(features->coded_dim());
+      CRPGS_ASSIGN_OR_RETURN(rate.context, create_component<ContextModel>(registry, c, args));
+      CRPGS_ASSIGN_OR_RETURN(rate.entropy, create_component<EntropyModel>(registry, e, args));
+      CRPGS_ASSIGN_OR_RETURN(rate.options, rate_options_from_config(resolved));
+    }
+  }
   // 4. Dataset: a real one from disk, or the built-in synthetic scene.
   const YAML::Node d = resolved.section("dataset");
   Dataset dataset;
@@ -547,7 +640,7 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   // 5. Model and trainer.
   CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> trainer,
                          make_trainer(train_options, model_options, std::move(dataset),
-                                      std::move(rasterizer), std::move(features)));
+                                      std::move(rasterizer), std::move(features), rate));
   // 6. Resume from the last checkpoint when asked and present.
   if (setup.resume) {
     const std::string path = trainer->checkpoint_path();

@@ -1,0 +1,217 @@
+// Training with the rate path (method.md §2.3-§2.6): phase switching, the rate and mask terms
+// acting on a tiny generated scene, quantised evaluation, config wiring.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <iostream>
+
+#include "crpgs/components.h"
+#include "crpgs/experiments/sweep.h"
+#include "crpgs/scene_generator.h"
+#include "crpgs/trainer.h"
+#include "raster/cpu_rasterizer.h"
+#include "train/rate_test_util.h"
+
+namespace crpgs {
+namespace {
+
+#define SKIP_WITHOUT_PLUGINS()                            \
+  do {                                                    \
+    const std::string why = test::rate_plugins_missing(); \
+    if (!why.empty()) GTEST_SKIP() << why;                \
+  } while (0)
+
+std::shared_ptr<FeatureModel> identity_features() {
+  crpgs_create_args args{};
+  args.feature_dim = 50;
+  args.n_offsets = 10;
+  YAML::Node block;
+  block["type"] = "identity";
+  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
+  if (!f.ok()) throw StatusError(f.status());
+  return f.value();
+}
+
+Dataset tiny_scene() {
+  raster::CpuRasterizer r(1);
+  SyntheticSceneOptions o;
+  o.width = 32;
+  o.height = 24;
+  o.views = 8;
+  o.sfm_points = 1500;
+  auto s = generate_scene(o, r);
+  if (!s.ok()) throw StatusError(s.status());
+  return std::move(s).value();
+}
+
+// quant_start 10, rate_start 22; growing from 15 every 5 (on both sides of the boundaries, but
+// not at rate_start itself, so the recomputed bounds can be checked after that step).
+TrainOptions rate_schedule(int iterations) {
+  TrainOptions to;
+  to.schedule = Schedule::scaled(0.01);
+  to.schedule.iterations = iterations;
+  to.schedule.update_interval = 5;
+  to.schedule.quant_start = 10;
+  to.schedule.rate_start = 22;
+  to.eval_interval = 0;
+  to.seed = 3;
+  return to;
+}
+
+std::unique_ptr<Trainer> rate_trainer(const Dataset& ds, const TrainOptions& to,
+                                      const RateOptions& ro) {
+  at::set_num_threads(1);
+  torch::manual_seed(1);  // the context's init draws from the global generator
+  AnchorModelOptions mo;
+  mo.voxel_size = 0.08;
+  mo.lr.max_steps = to.schedule.iterations;
+  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_features(),
+                        test::make_rate_setup(50, 10, ro));
+  if (!t.ok()) throw StatusError(t.status());
+  return std::move(t).value();
+}
+
+TEST(RateTraining, PhasesSwitchAtQuantStartAndRateStart) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = rate_trainer(ds, rate_schedule(28), RateOptions());
+  auto context_mlp = [&] { return t->model().context()->parameters().back().detach().clone(); };
+  const auto ctx0 = context_mlp();
+  for (int it = 1; it <= 28; ++it) {
+    auto loss = t->step();
+    ASSERT_TRUE(loss.ok());
+    ASSERT_TRUE(std::isfinite(loss.value())) << "iteration " << it;
+    const RateReport& r = t->last_rate();
+    const QuantPhase expected = it <= 10   ? QuantPhase::kRaw
+                                : it <= 22 ? QuantPhase::kFixedNoise
+                                           : QuantPhase::kAdaptiveNoise;
+    EXPECT_EQ(t->model().quant_phase(), expected) << "iteration " << it;
+    if (it <= 22) {
+      EXPECT_FALSE(r.on) << "rate term before rate_start, iteration " << it;
+    } else {
+      EXPECT_TRUE(r.on) << "no rate term after rate_start, iteration " << it;
+      EXPECT_TRUE(std::isfinite(r.rate));
+      EXPECT_GT(r.rate, 0.0);
+      EXPECT_GT(r.hash_bits, 0.0);
+      EXPECT_GE(r.rate, r.bits_per_param);
+      EXPECT_GT(r.mask_loss, 0.0);
+    }
+    if (it == 22) {  // the context has not moved yet; bounds recomputed at rate_start
+      EXPECT_TRUE(torch::equal(ctx0, context_mlp()));
+      auto before = t->model().bounds().clone();
+      t->model().recompute_bounds();
+      EXPECT_TRUE(torch::equal(before, t->model().bounds()));
+    }
+  }
+  // The context learned in the rate phase, and evaluation runs on quantised attributes.
+  EXPECT_FALSE(torch::equal(ctx0, context_mlp()));
+  EXPECT_GT(t->model().learning_rate("context"), 0.0);
+  EXPECT_GT(t->model().learning_rate("context_mlp"), 0.0);
+  auto ev = t->evaluate();
+  ASSERT_TRUE(ev.ok()) << ev.status().to_string();
+  EXPECT_TRUE(std::isfinite(ev->mean_psnr));
+  EXPECT_FALSE(t->model().is_quantized());  // evaluation leaves the model as it was
+}
+
+TEST(RateTraining, FrozenBoundsStayAtTheirInitialValue) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  RateOptions ro;
+  ro.recompute_bounds = false;
+  auto t = rate_trainer(ds, rate_schedule(25), ro);
+  const auto initial = t->model().bounds().clone();
+  ASSERT_TRUE(t->train().ok());
+  EXPECT_TRUE(torch::equal(initial, t->model().bounds()));
+}
+
+// lambda and mask_lambda act: a large weight ends with fewer bits per parameter, a large mask
+// weight with fewer offsets switched on, than the same run without them.
+TEST(RateTraining, LargeWeightsLowerTheRateAndTheMasks) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  const TrainOptions to = rate_schedule(60);
+  auto run = [&](double lambda, double mask_lambda) {
+    RateOptions ro;
+    ro.lambda = lambda;
+    ro.mask_lambda = mask_lambda;
+    ro.subset = 0.5;  // a tiny scene has few anchors
+    auto t = rate_trainer(ds, to, ro);
+    EXPECT_TRUE(t->train().ok());
+    const double bits = test::quantized_bits_per_param(t->model());
+    const double mask = torch::sigmoid(t->model().mask_logits().detach()).mean().item<double>();
+    return std::make_pair(bits, mask);
+  };
+  const auto base = run(0.0, 0.0);
+  const auto rate = run(0.2, 0.0);
+  const auto masks = run(0.0, 1.0);
+  std::cout << "bits/param: lambda 0 " << base.first << ", lambda 0.2 " << rate.first
+            << "; mean mask sigmoid: " << base.second << " vs mask_lambda 1 " << masks.second
+            << "\n";
+  EXPECT_LT(rate.first, 0.9 * base.first);
+  EXPECT_LT(masks.second, base.second - 0.01);
+}
+
+TEST(RateTraining, SetupFromConfigAttachesTheRatePath) {
+  SKIP_WITHOUT_PLUGINS();
+  auto cfg = Config::from_string(
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 6}\n"
+      "train: {schedule: fast, fast_factor: 0.001, threads: 1}\n"
+      "rasterizer: {type: cpu, threads: 1}\n"
+      "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+      "entropy: {type: gaussian}\n"
+      "rate: {lambda: 0.004, recompute_bounds: false}\n",
+      "test.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  auto resolved = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  auto t = setup_training(resolved.value(), test::rate_registry(), SetupOptions());
+  ASSERT_TRUE(t.ok()) << t.status().to_string();
+  EXPECT_TRUE((*t)->model().has_rate());
+  EXPECT_DOUBLE_EQ((*t)->model().rate_options().lambda, 0.004);
+  EXPECT_FALSE((*t)->model().rate_options().recompute_bounds);
+  EXPECT_DOUBLE_EQ((*t)->model().rate_options().subset, 0.05);
+  // Without the sections: the plain model. With only one of them: an error.
+  auto plain_cfg = Config::from_string(
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 6}\ntrain: {threads: 1}\n",
+      "plain.yaml");
+  auto plain = setup_training(plain_cfg->resolve(test::rate_registry()).value(),
+                              test::rate_registry(), SetupOptions());
+  ASSERT_TRUE(plain.ok());
+  EXPECT_FALSE((*plain)->model().has_rate());
+  auto half_cfg = Config::from_string("entropy: {type: gaussian}\n", "half.yaml");
+  auto half = setup_training(half_cfg->resolve(test::rate_registry()).value(),
+                             test::rate_registry(), SetupOptions());
+  ASSERT_FALSE(half.ok());
+  EXPECT_NE(half.status().message().find("context"), std::string::npos);
+}
+
+TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = CRPGS_SOURCE_DIR;
+  auto cfg = Config::load_file(root + "/configs/hac.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  auto r = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(r.ok()) << r.status().to_string();
+  EXPECT_EQ(r->section("context")["type"].as<std::string>(), "hash_grid");
+  EXPECT_EQ(r->section("entropy")["type"].as<std::string>(), "gaussian");
+  auto ro = rate_options_from_config(r.value());
+  ASSERT_TRUE(ro.ok());
+  EXPECT_DOUBLE_EQ(ro->lambda, 0.001);
+  EXPECT_TRUE(ro->recompute_bounds);
+  EXPECT_DOUBLE_EQ(ro->q0.offset, 0.2);
+  // An out-of-range weight is refused by the schema.
+  auto bad = Config::from_string("rate: {lambda: 2}\n", "bad.yaml");
+  ASSERT_TRUE(bad.ok());
+  EXPECT_FALSE(bad->resolve(test::rate_registry()).ok());
+  for (const char* sweep : {"fern_rd", "lego_rd", "ablation"}) {
+    auto spec = experiments::load_sweep(root + "/configs/sweeps/" + sweep + ".yaml");
+    ASSERT_TRUE(spec.ok()) << sweep << ": " << spec.status().to_string();
+    EXPECT_EQ(spec->rate_key, "rate.lambda") << sweep;
+  }
+}
+
+}  // namespace
+}  // namespace crpgs
