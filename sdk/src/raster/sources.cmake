@@ -7,8 +7,11 @@ list(APPEND CRPGS_TORCH_SOURCES
 )
 # No FP traps lets the compiler if-convert the pixel loops; no contraction keeps the alpha that
 # forward and backward recompute bitwise identical.
-# -Wno-psabi: the kernels pass 32-byte vectors between inline helpers in the baseline clone.
 set_source_files_properties(src/raster/stages.cpp PROPERTIES
   COMPILE_OPTIONS "-fno-trapping-math;-ffp-contract=off")
+# The kernels include no libtorch header and skip the precompiled one: its saved options would
+# turn FMA contraction back on in the target_clones clones. -Wno-psabi: 32-byte vectors pass
+# between inline helpers in the baseline clone.
 set_source_files_properties(src/raster/tile_kernels.cpp PROPERTIES
-  COMPILE_OPTIONS "-fno-trapping-math;-ffp-contract=off;-Wno-psabi")
+  COMPILE_OPTIONS "-fno-trapping-math;-ffp-contract=off;-Wno-psabi"
+  SKIP_PRECOMPILE_HEADERS ON)

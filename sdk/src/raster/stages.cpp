@@ -366,35 +366,49 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
   const float* m2 = means2d.data_ptr<float>();
   const int32_t* rad = radii.data_ptr<int32_t>();
   const float* dep = depths.data_ptr<float>();
-  // Rects once, counts per tile, then a fill in Gaussian order (serial: cheap, deterministic).
+  // Gaussians in `parts` contiguous ranges: counts per (range, tile), offsets tile-major then
+  // range-minor, and a fill in Gaussian order; the per-tile sort below fixes the final order.
+  const int parts = int(std::max<int64_t>(1, std::min<int64_t>(threads, n / 4096)));
+  auto part_begin = [&](int64_t p) { return n * p / parts; };
   std::vector<TileRect> rects(static_cast<size_t>(n));
-  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
-    for (int64_t i = b; i < e; ++i) {
-      rects[i] = rad[i] > 0 ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
-                            : TileRect{0, 0, 0, 0};
+  std::vector<int64_t> counts(static_cast<size_t>(parts) * n_tiles, 0);
+  parallel_items(parts, threads, [&](int64_t p) {
+    int64_t* c = counts.data() + p * n_tiles;
+    for (int64_t i = part_begin(p); i < part_begin(p + 1); ++i) {
+      const TileRect r = rad[i] > 0
+                             ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
+                             : TileRect{0, 0, 0, 0};
+      rects[i] = r;
+      for (int ty = r.y0; ty < r.y1; ++ty)
+        for (int tx = r.x0; tx < r.x1; ++tx) ++c[ty * out.tiles_x + tx];
     }
   });
-  std::vector<int64_t> counts(static_cast<size_t>(n_tiles) + 1, 0);
-  for (int64_t i = 0; i < n; ++i) {
-    const TileRect& r = rects[i];
-    for (int ty = r.y0; ty < r.y1; ++ty)
-      for (int tx = r.x0; tx < r.x1; ++tx) ++counts[ty * out.tiles_x + tx + 1];
-  }
-  for (int t = 0; t < n_tiles; ++t) counts[t + 1] += counts[t];
-  const int64_t total = counts[n_tiles];
-  TORCH_CHECK(total <= std::numeric_limits<int32_t>::max(),
-              "rasterizer: too many tile intersections (", total, ")");
+  std::vector<int64_t> cursor(counts.size());
   out.tile_offsets = at::empty({n_tiles + 1}, radii.options());
   int32_t* off = out.tile_offsets.data_ptr<int32_t>();
-  for (int t = 0; t <= n_tiles; ++t) off[t] = int32_t(counts[t]);
+  int64_t total = 0;
+  for (int t = 0; t < n_tiles; ++t) {
+    TORCH_CHECK(total <= std::numeric_limits<int32_t>::max(),
+                "rasterizer: too many tile intersections (", total, ")");
+    off[t] = int32_t(total);
+    for (int p = 0; p < parts; ++p) {
+      cursor[size_t(p) * n_tiles + t] = total;
+      total += counts[size_t(p) * n_tiles + t];
+    }
+  }
+  TORCH_CHECK(total <= std::numeric_limits<int32_t>::max(),
+              "rasterizer: too many tile intersections (", total, ")");
+  off[n_tiles] = int32_t(total);
   out.gaussian_ids = at::empty({total}, radii.options());
   int32_t* ids = out.gaussian_ids.data_ptr<int32_t>();
-  std::vector<int64_t> cursor(counts.begin(), counts.end() - 1);
-  for (int64_t i = 0; i < n; ++i) {
-    const TileRect& r = rects[i];
-    for (int ty = r.y0; ty < r.y1; ++ty)
-      for (int tx = r.x0; tx < r.x1; ++tx) ids[cursor[ty * out.tiles_x + tx]++] = int32_t(i);
-  }
+  parallel_items(parts, threads, [&](int64_t p) {
+    int64_t* cur = cursor.data() + p * n_tiles;
+    for (int64_t i = part_begin(p); i < part_begin(p + 1); ++i) {
+      const TileRect& r = rects[i];
+      for (int ty = r.y0; ty < r.y1; ++ty)
+        for (int tx = r.x0; tx < r.x1; ++tx) ids[cur[ty * out.tiles_x + tx]++] = int32_t(i);
+    }
+  });
   // Sort each tile by (depth, index): depths are positive, so their bits order as integers.
   parallel_items(n_tiles, threads, [&](int64_t t) {
     const int32_t b = off[t], e = off[t + 1];
@@ -487,21 +501,27 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
   float* oo = g.v_opacities.data_ptr<float>();
   float* ocol = g.v_colors.data_ptr<float>();
   float* od = g.v_depths.data_ptr<float>();
-  // Fixed-order reduction over entries (tile-major), independent of the thread count.
-  for (int64_t k = 0; k < m; ++k) {
-    const float* e = entry.data() + k * kGradSlots;
-    const int64_t i = ids[k];
-    om[2 * i] += e[0];
-    om[2 * i + 1] += e[1];
-    oc[3 * i] += e[2];
-    oc[3 * i + 1] += e[3];
-    oc[3 * i + 2] += e[4];
-    oo[i] += e[5];
-    ocol[3 * i] += e[6];
-    ocol[3 * i + 1] += e[7];
-    ocol[3 * i + 2] += e[8];
-    od[i] += e[9];
-  }
+  // Fixed-order reduction over entries (tile-major) for every Gaussian, independent of the
+  // thread count: each part owns a range of Gaussians and scans all entries.
+  const int parts = int(std::max<int64_t>(1, std::min<int64_t>(threads, m / 65536)));
+  parallel_items(parts, threads, [&](int64_t p) {
+    const int64_t lo = n * p / parts, hi = n * (p + 1) / parts;
+    for (int64_t k = 0; k < m; ++k) {
+      const int64_t i = ids[k];
+      if (i < lo || i >= hi) continue;
+      const float* e = entry.data() + k * kGradSlots;
+      om[2 * i] += e[0];
+      om[2 * i + 1] += e[1];
+      oc[3 * i] += e[2];
+      oc[3 * i + 1] += e[3];
+      oc[3 * i + 2] += e[4];
+      oo[i] += e[5];
+      ocol[3 * i] += e[6];
+      ocol[3 * i + 1] += e[7];
+      ocol[3 * i + 2] += e[8];
+      od[i] += e[9];
+    }
+  });
   return g;
 }
 

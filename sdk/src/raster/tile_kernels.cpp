@@ -9,7 +9,7 @@
 #include <cmath>
 #include <vector>
 
-#include "raster/stages.h"
+#include "raster/constants.h"
 
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
 #define CRPGS_TARGET_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
@@ -18,12 +18,6 @@
 #endif
 #define CRPGS_INLINE inline __attribute__((always_inline))
 #define CRPGS_LAMBDA_INLINE __attribute__((always_inline))
-
-// GCC drops -ffp-contract=off for target_clones("arch=...") clones; FMA contraction could make
-// forward and backward round alpha differently, so it is switched off here again.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC optimize("fp-contract=off")
-#endif
 
 namespace crpgs::raster::kernels {
 namespace {
@@ -49,6 +43,10 @@ CRPGS_INLINE vf select(vi m, vf a, vf b) {
 }
 CRPGS_INLINE vi select(vi m, vi a, vi b) {
   return m ? a : b;
+}
+// a where the mask is set, else +0 (one AND, where m ? a : 0 costs a compare and a blend).
+CRPGS_INLINE vf keep(vi m, vf a) {
+  return __builtin_bit_cast(vf, __builtin_bit_cast(vi, a) & m);
 }
 
 // Cephes-style exp for x <= 0 (about 2 ulp), lane-wise.
@@ -78,11 +76,13 @@ CRPGS_INLINE bool all(vi m) {
   return o != 0;
 }
 
-// Fixed-order lane sum (deterministic for any thread count and instruction set).
+// Fixed-order lane sum (a fixed tree: deterministic for any thread count and instruction set).
 CRPGS_INLINE float hsum(vf v) {
-  float s = 0.f;
-  for (int l = 0; l < kLanes; ++l) s += v[l];
-  return s;
+  typedef float vf4 __attribute__((vector_size(4 * sizeof(float))));
+  static_assert(kLanes == 8, "the tree below sums 8 lanes");
+  const vf4 h =
+      __builtin_shufflevector(v, v, 0, 1, 2, 3) + __builtin_shufflevector(v, v, 4, 5, 6, 7);
+  return (h[0] + h[2]) + (h[1] + h[3]);
 }
 
 struct TileGeom {
@@ -103,7 +103,7 @@ CRPGS_INLINE TileGeom tile_geom(int tile, int tiles_x, int width, int height) {
 struct Entry {
   float mx, my, a, b, c, op, r, g, bl, d;
   int k;                  // index in the tile list
-  int8_t c0, c1, y0, y1;  // chunk columns [c0, c1] and tile rows [y0, y1]
+  int8_t l0, l1, r0, r1;  // tile rows [l0, l1] of the left chunk column and [r0, r1] of the right
 };
 
 // Pixels [x0, x1] x [y0, y1] (tile-relative) that the Gaussian can reach; false when none.
@@ -121,6 +121,37 @@ CRPGS_INLINE bool pixel_range(const Packed& g, const TileGeom& tg, int& x0, int&
   y0 = int(std::max(fy0, lo_y)) - tg.y0;
   y1 = int(std::min(fy1, hi_y)) - tg.y0;
   return true;
+}
+
+// Tile rows (within [y0, y1]) where the ellipse d^T K d <= q reaches pixel centres x <= xb
+// (left) or x >= xb (!left). The ellipse is convex, so these rows form an interval; its ends
+// are the ellipse's top / bottom points when they lie on that side, else the ends of the chord
+// x = xb. In double with a margin, like the box, so float rounding never loses a pixel.
+CRPGS_INLINE void strip_rows(const Packed& g, const TileGeom& tg, double xb, bool left, int y0,
+                             int y1, int8_t& ya, int8_t& yb) {
+  const double a = g.a, b = g.b, c = g.c, q = double(g.q) * (1 + 2e-3);
+  const double det = a * c - b * b;
+  const double ey = std::sqrt(q * a / det);
+  const double x_top = g.mx + b * ey / a, x_bot = g.mx - b * ey / a;  // at y = my -/+ ey
+  const double dx = g.mx - xb;
+  const double disc = c * q - det * dx * dx;
+  const double half = disc > 0 ? std::sqrt(disc) / c : 0.0, mid = g.my + b * dx / c;
+  auto inside = [&](double x) { return left ? x <= xb : x >= xb; };
+  double lo, hi;
+  if (inside(x_top)) {
+    lo = g.my - ey;
+  } else if (disc >= 0) {
+    lo = mid - half;
+  } else {
+    ya = 0, yb = -1;
+    return;
+  }
+  hi = inside(x_bot) ? g.my + ey : mid + half;
+  constexpr double kMargin = 0.05;  // pixels
+  const double fa = std::ceil(lo - kMargin - 0.5) - tg.y0,
+               fb = std::floor(hi + kMargin - 0.5) - tg.y0;
+  ya = int8_t(std::max<double>(y0, std::min<double>(fa, y1 + 1)));
+  yb = int8_t(std::min<double>(y1, std::max<double>(fb, y0 - 1)));
 }
 
 // Gathers entries [0, count) of the tile (those that reach a pixel) into `out`; the gather
@@ -149,12 +180,38 @@ CRPGS_INLINE int gather(const TileInputs& in, int tile, const TileGeom& tg, int 
     e.bl = g.bl;
     e.d = g.d;
     e.k = k;
-    e.c0 = int8_t(xa / kLanes);
-    e.c1 = int8_t(xb / kLanes);
-    e.y0 = int8_t(ya);
-    e.y1 = int8_t(yb);
+    e.l0 = e.r0 = 0;
+    e.l1 = e.r1 = -1;
+    if (xb < kLanes) {
+      e.l0 = int8_t(ya);
+      e.l1 = int8_t(yb);
+    } else if (xa >= kLanes) {
+      e.r0 = int8_t(ya);
+      e.r1 = int8_t(yb);
+    } else {  // both chunk columns: each gets the rows where the ellipse reaches it
+      const double xm = tg.x0 + kLanes;  // first pixel of the right column; centres at +0.5
+      strip_rows(g, tg, xm - 0.5 + 0.05, true, ya, yb, e.l0, e.l1);
+      strip_rows(g, tg, xm + 0.5 - 0.05, false, ya, yb, e.r0, e.r1);
+    }
   }
   return n;
+}
+
+// Calls one(c, y) for the chunk column c of every row of the entry's strips, and two(y) for
+// rows where both columns are needed, so that both loop bodies stay branch-regular.
+template <typename One, typename Two>
+CRPGS_INLINE void for_each_strip_row(const Entry& e, const One& one, const Two& two) {
+  const int bs = std::max(e.l0, e.r0), be = std::min(e.l1, e.r1);
+  if (bs <= be) {
+    for (int y = bs; y <= be; ++y) two(y);
+    for (int y = e.l0; y < bs && y <= e.l1; ++y) one(0, y);
+    for (int y = std::max(be + 1, int(e.l0)); y <= e.l1; ++y) one(0, y);
+    for (int y = e.r0; y < bs && y <= e.r1; ++y) one(1, y);
+    for (int y = std::max(be + 1, int(e.r0)); y <= e.r1; ++y) one(1, y);
+  } else {
+    for (int y = e.l0; y <= e.l1; ++y) one(0, y);
+    for (int y = e.r0; y <= e.r1; ++y) one(1, y);
+  }
 }
 
 // Per-column and per-row terms of the exponent, shared by forward and backward so that both
@@ -164,7 +221,7 @@ struct ColTerms {
 };
 
 CRPGS_INLINE void col_terms(const Entry& e, const vf* px, ColTerms* ct) {
-  for (int c = e.c0; c <= e.c1; ++c) {
+  for (int c = 0; c < kChunksPerRow; ++c) {
     ct[c].dx = e.mx - px[c];
     ct[c].hadx2 = -0.5f * (e.a * ct[c].dx * ct[c].dx);
   }
@@ -226,7 +283,7 @@ CRPGS_INLINE void forward_impl(int tile, const TileInputs& in, const ForwardOutp
   for (int j = 0; j < n && n_done < kTilePixels; ++j) {
     const Entry& e = es[size_t(j)];
     const vi kk = splati(e.k + 1);
-    vi stopped = splati(0);
+    vi stopped = splati(0);  // minus the number of pixels that stop, per lane
     ColTerms ct[kChunksPerRow];
     col_terms(e, px, ct);
     auto step = [&](int i, const ColTerms& col, const RowTerms& rt) CRPGS_LAMBDA_INLINE {
@@ -239,7 +296,7 @@ CRPGS_INLINE void forward_impl(int tile, const TileInputs& in, const ForwardOutp
       const vf nt = t * (1.f - al);
       const vi stop = ok & (nt <= kMinTransmittance);
       const vi acc = ok & ~stop;
-      const vf w = select(acc, al * t, splat(0.f));
+      const vf w = keep(acc, al * t);
       cr[i] += w * e.r;
       cg[i] += w * e.g;
       cb[i] += w * e.bl;
@@ -247,31 +304,25 @@ CRPGS_INLINE void forward_impl(int tile, const TileInputs& in, const ForwardOutp
       T[i] = select(acc, nt, t);
       last[i] = select(acc, kk, last[i]);
       done[i] |= stop;
-      stopped |= stop;
+      stopped += stop;
     };
-    // One loop body per box width (one or both chunks of a row) keeps the branches regular.
-    if (e.c0 == e.c1) {
-      const int c = e.c0;
-      for (int y = e.y0; y <= e.y1; ++y) {
-        const int i = y * kChunksPerRow + c;
-        if (chunk_done[i]) continue;
-        step(i, ct[c], row_terms(e, float(tg.y0 + y) + 0.5f));
-      }
-    } else {
-      for (int y = e.y0; y <= e.y1; ++y) {
-        const int i = y * kChunksPerRow;
-        if (chunk_done[i] & chunk_done[i + 1]) continue;
-        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
-        step(i, ct[0], rt);
-        step(i + 1, ct[1], rt);
-      }
-    }
-    if (any(stopped)) {  // rare: recount finished pixels and chunks
-      n_done = 0;
-      for (int i = 0; i < kChunks; ++i) {
-        for (int l = 0; l < kLanes; ++l) n_done += done[i][l] != 0 ? 1 : 0;
-        chunk_done[i] = all(done[i]);
-      }
+    for_each_strip_row(
+        e,
+        [&](int c, int y) CRPGS_LAMBDA_INLINE {
+          const int i = y * kChunksPerRow + c;
+          if (chunk_done[i]) return;
+          step(i, ct[c], row_terms(e, float(tg.y0 + y) + 0.5f));
+        },
+        [&](int y) CRPGS_LAMBDA_INLINE {
+          const int i = y * kChunksPerRow;
+          if (chunk_done[i] & chunk_done[i + 1]) return;
+          const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+          step(i, ct[0], rt);
+          step(i + 1, ct[1], rt);
+        });
+    if (any(stopped)) {  // some pixels finished: count them, update the finished chunks
+      for (int l = 0; l < kLanes; ++l) n_done -= stopped[l];
+      for (int i = 0; i < kChunks; ++i) chunk_done[i] = all(done[i]);
     }
   }
   for (int py = 0; py < tg.h; ++py) {
@@ -345,7 +396,7 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
     ColTerms ct[kChunksPerRow];
     col_terms(e, px, ct);
     vf adx[kChunksPerRow], bdx[kChunksPerRow], hdx2[kChunksPerRow];
-    for (int c = e.c0; c <= e.c1; ++c) {
+    for (int c = 0; c < kChunksPerRow; ++c) {
       adx[c] = e.a * ct[c].dx;
       bdx[c] = e.b * ct[c].dx;
       hdx2[c] = -0.5f * (ct[c].dx * ct[c].dx);
@@ -366,10 +417,10 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
       const vf oma = 1.f - al;
       const vf inv = 1.f / oma;
       const vf ti = t * inv;
-      const vf w = select(ok, al * ti, splat(0.f));
+      const vf w = keep(ok, al * ti);
       vf v_al = ti * ((e.r - rr) * pr + (e.g - rg) * pg + (e.bl - rb) * pb) + tf[i] * inv;
       if (kDepth) v_al += ti * (e.d - Rd[i]) * gd[i];
-      v_al = select(ok, v_al, splat(0.f));
+      v_al = keep(ok, v_al);
       acc[6] += w * pr;
       acc[7] += w * pg;
       acc[8] += w * pb;
@@ -381,32 +432,30 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
       T[i] = select(ok, ti, t);
       const vi unclamped = vis <= kMaxAlpha;
       const vf gv = G * v_al;
-      acc[5] += select(unclamped, gv, splat(0.f));
-      const vf v_pow = select(unclamped & ~pos, gv * e.op, splat(0.f));
+      acc[5] += keep(unclamped, gv);
+      const vf v_pow = keep(unclamped & ~pos, gv * e.op);
       acc[0] -= v_pow * (cadx + rt.bdy);
       acc[1] -= v_pow * (cbdx + rw.cdy);
       acc[2] += v_pow * chdx2;
       acc[3] += v_pow * (dx * rw.ndy);
       acc[4] += v_pow * rw.hdy2;
     };
-    if (e.c0 == e.c1) {
-      const int c = e.c0;
-      for (int y = e.y0; y <= e.y1; ++y) {
-        const int i = y * kChunksPerRow + c;
-        if (k >= chunk_last[i]) continue;
-        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
-        step(i, c, rt, row_grad(e, rt));
-      }
-    } else {
-      for (int y = e.y0; y <= e.y1; ++y) {
-        const int i = y * kChunksPerRow;
-        if (k >= chunk_last[i] && k >= chunk_last[i + 1]) continue;
-        const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
-        const RowGrad rw = row_grad(e, rt);
-        step(i, 0, rt, rw);
-        step(i + 1, 1, rt, rw);
-      }
-    }
+    for_each_strip_row(
+        e,
+        [&](int c, int y) CRPGS_LAMBDA_INLINE {
+          const int i = y * kChunksPerRow + c;
+          if (k >= chunk_last[i]) return;
+          const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+          step(i, c, rt, row_grad(e, rt));
+        },
+        [&](int y) CRPGS_LAMBDA_INLINE {
+          const int i = y * kChunksPerRow;
+          if (k >= chunk_last[i] && k >= chunk_last[i + 1]) return;
+          const RowTerms rt = row_terms(e, float(tg.y0 + y) + 0.5f);
+          const RowGrad rw = row_grad(e, rt);
+          step(i, 0, rt, rw);
+          step(i + 1, 1, rt, rw);
+        });
     float* o = entry_grads + int64_t(start + k) * kGradSlots;
     for (int s = 0; s < kGradSlots; ++s) o[s] = hsum(acc[s]);
   }
@@ -430,6 +479,7 @@ Packed pack_one(const float* m2, const float* con, float op, const float* col, f
   // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
   const double Q = 2.0 * std::log(255.0 * double(op));
   const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
+  p.q = float(Q);
   if (!(Q > 0) || !(det > 0)) {
     p.ex = p.ey = -1.f;
   } else {

@@ -12,7 +12,8 @@ namespace crpgs::raster::kernels {
 struct alignas(64) Packed {
   float mx, my, a, b, c, op, r, g, bl, d;
   float ex, ey;  // half-extent of the region where alpha can reach 1/255; ex < 0: never does
-  float pad[4];
+  float q;       // that region is d^T K d <= q (K the conic)
+  float pad[3];
 };
 
 /// m2 [2], con [3] (conic a, b, c), col [3].
