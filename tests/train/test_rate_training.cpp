@@ -114,6 +114,26 @@ TEST(RateTraining, PhasesSwitchAtQuantStartAndRateStart) {
   EXPECT_FALSE(t->model().is_quantized());  // evaluation leaves the model as it was
 }
 
+// Checkpoints carry the context, its optimizer state, the bounds and the noise generator.
+TEST(RateTraining, ResumeInTheRatePhaseEqualsUninterrupted) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  TrainOptions to = rate_schedule(30);
+  auto full = rate_trainer(ds, to, RateOptions());
+  ASSERT_TRUE(full->train().ok());
+  to.output_dir = std::string(CRPGS_TEST_TMP_DIR) + "/rate_resume";
+  auto first = rate_trainer(ds, to, RateOptions());
+  for (int i = 0; i < 26; ++i) ASSERT_TRUE(first->step().ok());
+  ASSERT_TRUE(first->save_checkpoint(first->checkpoint_path()).ok());
+  auto resumed = rate_trainer(ds, to, RateOptions());
+  ASSERT_TRUE(resumed->load_checkpoint(first->checkpoint_path()).ok());
+  ASSERT_TRUE(resumed->train().ok());
+  auto a = full->model().state_dict(), b = resumed->model().state_dict();
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_TRUE(a.count("param.context.grid.0"));
+  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+}
+
 TEST(RateTraining, FrozenBoundsStayAtTheirInitialValue) {
   SKIP_WITHOUT_PLUGINS();
   Dataset ds = tiny_scene();
