@@ -38,11 +38,13 @@ CRPGS_INLINE vf splat(float s) {
 CRPGS_INLINE vi splati(int32_t s) {
   return vi{} + s;
 }
-CRPGS_INLINE vf select(vi m, vf a, vf b) {
-  return m ? a : b;
-}
+// Lane selects as bit operations on all-ones / all-zeros masks: GCC expands `m ? a : b` with a
+// compare against zero and a blend, and scalarises it on baseline x86-64.
 CRPGS_INLINE vi select(vi m, vi a, vi b) {
-  return m ? a : b;
+  return (a & m) | (b & ~m);
+}
+CRPGS_INLINE vf select(vi m, vf a, vf b) {
+  return __builtin_bit_cast(vf, select(m, __builtin_bit_cast(vi, a), __builtin_bit_cast(vi, b)));
 }
 // a where the mask is set, else +0 (one AND, where m ? a : 0 costs a compare and a blend).
 CRPGS_INLINE vf keep(vi m, vf a) {
