@@ -37,6 +37,7 @@ int report_error(const Status& st);
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);
 void add_config_commands(CLI::App& app, GlobalOptions& g);
 void add_train_commands(CLI::App& app, GlobalOptions& g);
+void add_codec_commands(CLI::App& app, GlobalOptions& g);
 void add_sweep_commands(CLI::App& app, GlobalOptions& g);   // cmd_sweep.cpp
 void add_report_commands(CLI::App& app, GlobalOptions& g);  // cmd_report.cpp
 

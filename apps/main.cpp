@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   add_plugin_commands(app, g);
   add_config_commands(app, g);
   add_train_commands(app, g);
+  add_codec_commands(app, g);
   add_sweep_commands(app, g);
   add_report_commands(app, g);
   try {

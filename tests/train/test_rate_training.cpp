@@ -6,6 +6,7 @@
 #include <cmath>
 #include <iostream>
 
+#include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/experiments/sweep.h"
 #include "crpgs/scene_generator.h"
@@ -231,6 +232,61 @@ TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
     ASSERT_TRUE(spec.ok()) << sweep << ": " << spec.status().to_string();
     EXPECT_EQ(spec->rate_key, "rate.lambda") << sweep;
   }
+}
+
+}  // namespace
+}  // namespace crpgs
+
+namespace crpgs {
+namespace {
+
+// The whole HAC path: train -> bitstream -> decode in the same way a fresh decoder would (from the
+// bytes and the config inside them) -> the decoded model renders exactly like the training-side
+// quantised model.
+TEST(RateTraining, BitstreamDecodesToTheQuantisedModel) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = rate_trainer(ds, rate_schedule(26), RateOptions());
+  for (int it = 0; it < 26; ++it) ASSERT_TRUE(t->step().ok());
+
+  QuantizedAttributes q;
+  auto coded = coded_model_from(t->model(), &q);
+  ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+  // The config the decoder rebuilds the components from (as make_rate_setup built them).
+  auto cfg = Config::from_string(
+      "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+      "entropy: {type: gaussian}\nmodel: {feature_dim: 50, n_offsets: 10}\n",
+      "bitstream_test.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto resolved = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  auto enc = encode_model(coded.value(), resolved.value(), codec_components_of(t->model()));
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+
+  at::set_num_threads(2);  // a different thread count than the encoder's
+  auto dec = decode_model(enc->bytes, test::rate_registry());
+  at::set_num_threads(1);
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_TRUE(torch::equal(dec->model.feature_sym, coded->feature_sym));
+  EXPECT_TRUE(torch::equal(dec->model.scaling_sym, coded->scaling_sym));
+  EXPECT_TRUE(torch::equal(dec->model.offset_sym, coded->offset_sym));
+  EXPECT_TRUE(torch::equal(dec->model.offset_masks, coded->offset_masks));
+  EXPECT_TRUE(torch::equal(dec->params.q_f, q.params.q_f));
+  auto decoded = model_from_decoded(dec.value(), t->model().options());
+  ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
+
+  raster::CpuRasterizer r(1);
+  RenderSettings rs;
+  const Camera& cam = ds.test.at(0).camera;
+  torch::NoGradGuard ng;
+  t->model().set_quantized(q);
+  auto a = t->model().generate(cam, -1, r, rs, false);
+  auto img_a = r.render(a.batch, cam, rs).image;
+  t->model().clear_quantized();
+  auto b = decoded.value()->generate(cam, -1, r, rs, false);
+  auto img_b = r.render(b.batch, cam, rs).image;
+  EXPECT_GT(a.batch.means.size(0), 0);
+  EXPECT_TRUE(torch::equal(img_a, img_b)) << "max diff " << (img_a - img_b).abs().max().item<float>();
 }
 
 }  // namespace

@@ -178,6 +178,8 @@ class AnchorModel {
   /// The Gaussian-generation MLPs by name (mlp_opacity.w1, .b1, .w2, .b2, mlp_cov.*, mlp_color.*,
   /// and `appearance` when the effect is on), detached.
   std::map<std::string, torch::Tensor> mlp_tensors() const;
+  /// The feature model the MLPs' input comes from (shared with whoever created the model).
+  std::shared_ptr<FeatureModel> feature_model() const;
 
   // ---- Rate path (HAC, method.md §2) ----
   /// Attaches a grid context (output width EntropyParamLayout{coded_dim, K}.width()) and an

@@ -25,6 +25,7 @@
 
 #include <torch/types.h>
 
+#include "crpgs/anchor_model.h"
 #include "crpgs/config.h"
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
@@ -87,6 +88,7 @@ struct DecodeResult {
   Config config;
   CodedModel model;
   CodecComponents components;
+  EntropyParams params;  ///< what the symbols were coded with (their steps dequantise them)
   std::vector<SectionSize> sections;
 };
 
@@ -94,6 +96,17 @@ struct DecodeResult {
 /// `registry` (a missing plugin is an error naming it).
 StatusOr<DecodeResult> decode_model(const std::vector<uint8_t>& bytes,
                                     const ComponentRegistry& registry);
+
+/// The coded form of a trained model with the rate path attached: its active anchors in canonical
+/// Morton order, quantised by AnchorModel::quantize (so the steps are the decoder's). `q` (optional)
+/// receives the quantised attributes, for evaluating the training-side quantised model.
+StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q = nullptr);
+/// The components a trained model is coded with.
+CodecComponents codec_components_of(const AnchorModel& model);
+
+/// A render-ready model from a decoded bitstream (dequantised: symbol · step).
+StatusOr<std::unique_ptr<AnchorModel>> model_from_decoded(const DecodeResult& decoded,
+                                                          const AnchorModelOptions& options);
 
 /// Section id -> report category ("geometry", "features", "scaling", "offsets", "masks",
 /// "links", "hash_grids", "mlps", "other").

@@ -118,7 +118,7 @@ torch::Tensor voxel_positions(const torch::Tensor& voxels, double voxel_size) {
 
 torch::Tensor normalize_positions(const torch::Tensor& positions, const torch::Tensor& bounds) {
   const auto lo = bounds[0].to(torch::kFloat), hi = bounds[1].to(torch::kFloat);
-  return (positions - lo) / (hi - lo);
+  return (positions - lo) / (hi - lo).clamp_min(1e-9);  // as AnchorModel::quantize
 }
 
 EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, int64_t coded_dim) {
@@ -337,7 +337,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   if (!mr.at_end()) return mr.error("trailing bytes");
 
   // 5. Symbol streams, chunk by chunk, with the parameters the encoder used.
-  const EntropyParams p = coded_entropy_params(m, *c.context, int64_t(Dc));
+  out.params = coded_entropy_params(m, *c.context, int64_t(Dc));
+  const EntropyParams& p = out.params;
   std::vector<ByteReader> readers;
   for (const char* id : kStreamIds) {
     CRPGS_ASSIGN_OR_RETURN(const coding::Section* ss, section(id));
@@ -390,6 +391,60 @@ StatusOr<DecodeResult> decode_model(const std::vector<uint8_t>& bytes,
   } catch (const std::exception& e) {
     return corrupt(std::string("cannot be decoded: ") + e.what());
   }
+}
+
+StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q_out) {
+  if (!model.has_rate())
+    return Status(StatusCode::kInvalidArgument,
+                  "encode: the model has no rate path (config needs `context` and `entropy`)");
+  torch::NoGradGuard no_grad;
+  const auto idx = model.active_anchors().nonzero().view(-1);
+  const float v = static_cast<float>(model.voxel_size());
+  const auto vox = torch::round(model.anchors().detach().index({idx}) / v).to(torch::kInt).contiguous();
+  std::vector<coding::Voxel> points(static_cast<size_t>(vox.size(0)));
+  const int32_t* vp = vox.data_ptr<int32_t>();
+  for (size_t i = 0; i < points.size(); ++i)
+    points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
+  const auto order = coding::morton_order(points);
+  for (size_t i = 1; i < order.size(); ++i)
+    if (points[order[i]] == points[order[i - 1]])
+      return Status(StatusCode::kInternal, "encode: two active anchors share a voxel");
+  const auto perm = torch::from_blob(const_cast<uint32_t*>(order.data()), {int64_t(order.size())},
+                                     torch::kInt).to(torch::kLong);
+  QuantizedAttributes q = model.quantize(idx.index({perm}));
+  CodedModel m;
+  m.voxel_size = model.voxel_size();
+  m.bounds = q.bounds.to(torch::kFloat);
+  m.voxels = vox.index({perm}).contiguous();
+  m.offset_masks = q.offset_masks;
+  m.feature_sym = q.feature_symbols;
+  m.scaling_sym = q.scaling_symbols;
+  m.offset_sym = q.offset_symbols;
+  m.mlps = model.mlp_tensors();
+  m.q0 = model.rate_options().q0;
+  if (q_out) *q_out = std::move(q);
+  return m;
+}
+
+CodecComponents codec_components_of(const AnchorModel& model) {
+  // The model owns its context/entropy; these non-owning handles live no longer than it.
+  auto none = [](auto*) {};
+  return {std::shared_ptr<ContextModel>(model.context(), none),
+          std::shared_ptr<EntropyModel>(model.entropy(), none), model.feature_model()};
+}
+
+StatusOr<std::unique_ptr<AnchorModel>> model_from_decoded(const DecodeResult& d,
+                                                          const AnchorModelOptions& options) {
+  const CodedModel& m = d.model;
+  const EntropyParams& p = d.params;
+  const int64_t n = m.voxels.size(0), K = m.offset_masks.size(1);
+  const auto features = m.feature_sym.to(torch::kFloat) * p.q_f;
+  const auto scaling = m.scaling_sym.to(torch::kFloat) * p.q_s;
+  const auto offsets = m.offset_sym.to(torch::kFloat) * p.q_o.view({n, 1, 1});
+  (void)K;
+  return AnchorModel::from_decoded(options, d.components.features,
+                                   voxel_positions(m.voxels, m.voxel_size), features, scaling,
+                                   offsets, m.offset_masks, m.mlps, m.bounds, m.voxel_size);
 }
 
 }  // namespace crpgs
