@@ -20,7 +20,7 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
   // A relative dataset path in a config file is relative to that file, so configs work from any
   // directory and the resolved copy in a run directory stays valid. (--set paths: relative to cwd.)
   const YAML::Node ds = cfg->root()["dataset"];
-  if (!path.empty() && ds.IsMap() && ds["path"] && ds["path"].IsScalar() &&
+  if (!path.empty() && ds.IsDefined() && ds.IsMap() && ds["path"] && ds["path"].IsScalar() &&
       !ds["path"].Scalar().empty() && std::filesystem::path(ds["path"].Scalar()).is_relative()) {
     const auto base = std::filesystem::absolute(path).parent_path();
     const auto abs = (base / ds["path"].Scalar()).lexically_normal().string();
