@@ -46,6 +46,13 @@ CRPGS_INLINE vi select(vi m, vi a, vi b) {
 CRPGS_INLINE vf select(vi m, vf a, vf b) {
   return __builtin_bit_cast(vf, select(m, __builtin_bit_cast(vi, a), __builtin_bit_cast(vi, b)));
 }
+// Clamps from a direct compare (GCC emits compare + blend / min / max for these).
+CRPGS_INLINE vf clamp_lo(vf x, float lo) {
+  return x < lo ? splat(lo) : x;
+}
+CRPGS_INLINE vf clamp_hi(vf x, float hi) {
+  return x < hi ? x : splat(hi);
+}
 // a where the mask is set, else +0 (one AND, where m ? a : 0 costs a compare and a blend).
 CRPGS_INLINE vf keep(vi m, vf a) {
   return __builtin_bit_cast(vf, __builtin_bit_cast(vi, a) & m);
@@ -53,7 +60,7 @@ CRPGS_INLINE vf keep(vi m, vf a) {
 
 // Cephes-style exp for x <= 0 (about 2 ulp), lane-wise.
 CRPGS_INLINE vf vexp(vf x) {
-  x = select(x < -87.f, splat(-87.f), x);
+  x = clamp_lo(x, -87.f);
   const vf kf = (x * 1.44269504088896341f + 12582912.f) - 12582912.f;  // round to nearest
   const vf r = x - kf * 0.693359375f - kf * -2.12194440e-4f;
   // 1 + r + r^2 (c5 + c4 r + c3 r^2 + c2 r^3 + c1 r^4 + c0 r^5), Estrin's scheme (short chains).
@@ -290,9 +297,9 @@ CRPGS_INLINE void forward_impl(int tile, const TileInputs& in, const ForwardOutp
     col_terms(e, px, ct);
     auto step = [&](int i, const ColTerms& col, const RowTerms& rt) CRPGS_LAMBDA_INLINE {
       vf power = power_of(col, rt);
-      power = select(power > 0.f, splat(0.f), power);
+      power = keep(power <= 0.f, power);  // min(power, 0)
       const vf vis = e.op * vexp(power);
-      const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
+      const vf al = clamp_hi(vis, kMaxAlpha);
       const vi ok = ~done[i] & (al >= kMinAlpha);
       const vf t = T[i];
       const vf nt = t * (1.f - al);
@@ -408,11 +415,11 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
       const vf cadx = adx[c], cbdx = bdx[c], chdx2 = hdx2[c];
       const vf dx = col.dx;
       vf power = power_of(col, rt);
-      const vi pos = power > 0.f;
-      power = select(pos, splat(0.f), power);
+      const vi nonpos = power <= 0.f;
+      power = keep(nonpos, power);  // min(power, 0), as in the forward
       const vf G = vexp(power);
       const vf vis = e.op * G;
-      const vf al = select(vis < kMaxAlpha, vis, splat(kMaxAlpha));
+      const vf al = clamp_hi(vis, kMaxAlpha);
       const vi ok = (kv < last[i]) & (al >= kMinAlpha);
       const vf t = T[i], rr = Rr[i], rg = Rg[i], rb = Rb[i];
       const vf pr = gr[i], pg = gg[i], pb = gb[i];
@@ -435,7 +442,7 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
       const vi unclamped = vis <= kMaxAlpha;
       const vf gv = G * v_al;
       acc[5] += keep(unclamped, gv);
-      const vf v_pow = keep(unclamped & ~pos, gv * e.op);
+      const vf v_pow = keep(unclamped & nonpos, gv * e.op);
       acc[0] -= v_pow * (cadx + rt.bdy);
       acc[1] -= v_pow * (cbdx + rw.cdy);
       acc[2] += v_pow * chdx2;
