@@ -8,9 +8,11 @@
 
 #include <CLI/CLI.hpp>
 
+#include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/config.h"
 #include "crpgs/registry.h"
+#include "crpgs/trainer.h"
 
 namespace crpgs::cli {
 
@@ -32,6 +34,29 @@ void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out = 
 
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);
+
+/// What writing a trained model's bitstream and checking it produced.
+struct BitstreamReport {
+  std::string path;
+  uint64_t file_bytes = 0;
+  std::vector<SectionSize> sections;
+  std::map<std::string, std::pair<double, double>> estimated_vs_coded_bits;
+  double encode_seconds = 0, decode_seconds = 0;
+  double quantized_psnr = 0;  ///< training-side quantised model, test views
+  double decoded_psnr = 0;    ///< the model decoded from the file on disk
+  std::vector<std::array<double, 3>> decoded_views;  ///< psnr, ssim, render seconds per view
+  std::vector<std::string> view_names;
+};
+/// Encodes the trained model (rate path required) to `path` atomically, decodes that file
+/// again, and evaluates both the training-side quantised model and the decoded one on the test
+/// views (decoded renders go to png_dir when set). Sizes are the file's size on disk.
+StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Config& config,
+                                                    const ComponentRegistry& registry,
+                                                    const std::string& path,
+                                                    const std::string& png_dir);
+void print_bitstream_report(const BitstreamReport& r);
+/// `crpgs eval FILE.crpgs`: decode, then evaluate on the test views of the dataset in its config.
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir);
 
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);

@@ -1,5 +1,6 @@
 /// @file cmd_codec.cpp
 /// @brief `crpgs info`: what a bitstream is made of.
+#include <chrono>
 #include <filesystem>
 #include <map>
 
@@ -7,8 +8,70 @@
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/coding/bitstream.h"
+#include "crpgs/trainer.h"
 
 namespace crpgs::cli {
+
+StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cfg,
+                                                    const ComponentRegistry& registry,
+                                                    const std::string& path,
+                                                    const std::string& png_dir) {
+  using clock = std::chrono::steady_clock;
+  auto secs = [](clock::time_point a) { return std::chrono::duration<double>(clock::now() - a).count(); };
+  BitstreamReport rep;
+  rep.path = path;
+  auto t0 = clock::now();
+  QuantizedAttributes q;
+  CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q));
+  CRPGS_ASSIGN_OR_RETURN(EncodeResult enc, encode_model(coded, cfg, codec_components_of(t.model())));
+  CRPGS_RETURN_IF_ERROR(write_file_atomic(path, enc.bytes));
+  rep.encode_seconds = secs(t0);
+  rep.estimated_vs_coded_bits = enc.estimated_vs_coded_bits;
+
+  // The training-side quantised model, on exactly the rows and steps of the bitstream.
+  t.model().set_quantized(q);
+  auto qeval = evaluate_views(t.model(), t.rasterizer(), t.dataset().test, "");
+  t.model().clear_quantized();
+  if (!qeval.ok()) return qeval.status();
+  rep.quantized_psnr = qeval->mean_psnr;
+
+  // Everything reported from here on comes from the file on disk.
+  t0 = clock::now();
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
+  CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, registry));
+  CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<AnchorModel> decoded,
+                         model_from_decoded(dec, t.model().options()));
+  rep.decode_seconds = secs(t0);
+  rep.file_bytes = bytes.size();
+  rep.sections = dec.sections;
+  CRPGS_ASSIGN_OR_RETURN(EvalResult deval,
+                         evaluate_views(*decoded, t.rasterizer(), t.dataset().test, png_dir));
+  rep.decoded_psnr = deval.mean_psnr;
+  for (const auto& v : deval.views) {
+    rep.view_names.push_back(v.name);
+    rep.decoded_views.push_back({v.psnr, v.ssim, deval.seconds_per_view});
+  }
+  return rep;
+}
+
+void print_bitstream_report(const BitstreamReport& r) {
+  std::printf("bitstream: %s, %llu bytes (%.4f MiB) — encode %.2f s, decode %.2f s\n",
+              r.path.c_str(), static_cast<unsigned long long>(r.file_bytes),
+              double(r.file_bytes) / 1048576.0, r.encode_seconds, r.decode_seconds);
+  std::vector<std::vector<std::string>> rows = {{"SECTION", "CATEGORY", "BYTES", "%"}};
+  char pct[32];
+  for (const auto& s : r.sections) {
+    std::snprintf(pct, sizeof pct, "%.2f", 100.0 * double(s.bytes) / double(r.file_bytes));
+    rows.push_back({s.id, section_category(s.id), std::to_string(s.bytes), pct});
+  }
+  print_table(rows);
+  for (const auto& [id, ec] : r.estimated_vs_coded_bits)
+    std::printf("%s: training-time estimate %.0f bits, coded %.0f bits (%+.2f%%)\n", id.c_str(),
+                ec.first, ec.second, ec.first > 0 ? 100.0 * (ec.second / ec.first - 1) : 0.0);
+  std::printf("test PSNR: quantised model %.3f dB, decoded from the file %.3f dB\n",
+              r.quantized_psnr, r.decoded_psnr);
+}
+
 namespace {
 
 int info(const GlobalOptions& g, const std::string& path, bool verbose) {
@@ -54,11 +117,72 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   return 0;
 }
 
+int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out) {
+  ComponentRegistry r = load_registry(g);
+  auto cfg = load_config(run_dir + "/config.yaml", g, r);
+  if (!cfg.ok()) return report_error(cfg.status());
+  auto trainer = setup_training(cfg.value(), r, SetupOptions{run_dir, true});
+  if (!trainer.ok()) return report_error(trainer.status());
+  if (trainer.value()->iteration() == 0)
+    return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));
+  auto rep = write_and_check_bitstream(*trainer.value(), cfg.value(), r, out, "");
+  if (!rep.ok()) return report_error(rep.status());
+  print_bitstream_report(rep.value());
+  return 0;
+}
+
+/// Decodes a bitstream and evaluates it on the test views of the dataset its config names.
+int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
+  ComponentRegistry r = load_registry(g);
+  auto bytes = read_file_bytes(path);
+  if (!bytes.ok()) return report_error(bytes.status());
+  const auto t0 = std::chrono::steady_clock::now();
+  auto dec = decode_model(bytes.value(), r);
+  if (!dec.ok()) return report_error(dec.status());
+  auto options = model_options_from_config(dec->config);
+  if (!options.ok()) return report_error(options.status());
+  auto model = model_from_decoded(dec.value(), options.value());
+  if (!model.ok()) return report_error(model.status());
+  const double decode_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  // The dataset (and rasterizer) exactly as the config that trained this model set them up.
+  auto setup = setup_training(dec->config, r, SetupOptions{});
+  if (!setup.ok()) return report_error(setup.status());
+  auto ev = evaluate_views(*model.value(), setup.value()->rasterizer(),
+                           setup.value()->dataset().test, png_dir);
+  if (!ev.ok()) return report_error(ev.status());
+  std::printf("%s: %zu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(), bytes->size(),
+              static_cast<long long>(dec->model.voxels.size(0)), decode_s);
+  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
+  char a[32], b[32];
+  for (const auto& v : ev->views) {
+    std::snprintf(a, sizeof a, "%.3f", v.psnr);
+    std::snprintf(b, sizeof b, "%.4f", v.ssim);
+    rows.push_back({v.name, a, b});
+  }
+  std::snprintf(a, sizeof a, "%.3f", ev->mean_psnr);
+  std::snprintf(b, sizeof b, "%.4f", ev->mean_ssim);
+  rows.push_back({"mean", a, b});
+  print_table(rows);
+  return 0;
+}
+
 }  // namespace
 
+/// `crpgs eval` on a file: used by cmd_train's eval when its argument is a bitstream.
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
+  return eval_bitstream(g, path, png_dir);
+}
+
 void add_codec_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string path;
+  static std::string path, run_dir, out;
   static bool verbose = false;
+  auto* enc = app.add_subcommand("encode", "Write the bitstream of a trained run (HAC/CRP-GS "
+                                           "configs), decode it back and check it");
+  enc->add_option("RUN_DIR", run_dir, "directory written by `crpgs train`")->required();
+  enc->add_option("-o,--output", out, "bitstream file")->required();
+  enc->callback([&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out)); });
+
   auto* cmd = app.add_subcommand("info", "Show what a .crpgs bitstream is made of: every section "
                                          "with its size in bytes and % of the file, by category");
   cmd->add_option("FILE", path, "bitstream")->required();
