@@ -1,8 +1,9 @@
 // Pixel loops of the tile rasterizer. A tile is 16 rows of two 8-pixel chunks; each Gaussian
-// of the tile's list is applied to the chunks its alpha >= 1/255 box touches, 8 pixels at a time
-// in GCC vector types, branch-free with lane masks. The same inline code is compiled for AVX2
-// and for baseline x86-64 (target_clones); both do the same IEEE operations in the same order
-// (no FMA contraction), so the results do not depend on which clone runs.
+// of the tile's list is applied to the chunks its alpha >= 1/255 ellipse reaches, 8 pixels at a
+// time in GCC vector types, branch-free with lane masks. The same inline code is compiled for
+// x86-64-v4, AVX2 and baseline x86-64 (target_clones; the baseline clone is slow, GCC splits the
+// 8-lane code there); all do the same IEEE operations in the same order (no FMA contraction), so
+// the results do not depend on which clone runs.
 #include "raster/tile_kernels.h"
 
 #include <algorithm>
