@@ -70,6 +70,7 @@ SelectTypeParameters=CR_CPU
 MpiDefault=none
 ReturnToService=2
 SlurmdTimeout=30
+MessageTimeout=5
 NodeName=$host CPUs=$(nproc) RealMemory=2000 State=UNKNOWN
 PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 CONF
@@ -79,8 +80,10 @@ pids+=($!)
 slurmd -D -f "$SLURM_CONF" -N "$host" > "$D/slurmd.out" 2>&1 &
 pids+=($!)
 ok=""
+# Bounded by wall time too: a client call against a daemon that never came up can block.
 for _ in $(seq 100); do
-  state=$(sinfo -h -N -o '%T' 2> /dev/null | head -n 1)
+  [ "$SECONDS" -gt 90 ] && break
+  state=$(timeout 5 sinfo -h -N -o '%T' 2> /dev/null | head -n 1)
   case "$state" in idle*|mix*|alloc*) ok=1; break ;; esac
   sleep 0.2
 done
@@ -126,7 +129,7 @@ chmod 755 "$D/fake_train.sh"
 export CRPGS_SWEEP_RUNNER="$D/fake_train.sh"
 
 cd "$D"
-out=$("$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
+out=$(timeout 60 "$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
 rc=$?
 echo "$out"
 [ $rc = 0 ] || { show_logs; echo "FAIL: crpgs sweep --slurm exited $rc"; exit 1; }
@@ -136,16 +139,17 @@ grep -q -- '--array=0-5' "$D/runs/sweep.sbatch" || { echo "FAIL: sbatch script";
 
 # Wait for the array to leave the queue (bounded).
 for _ in $(seq 300); do
-  [ -z "$(squeue -h -j "$job" 2> /dev/null)" ] && break
+  [ "$SECONDS" -gt 240 ] && break
+  [ -z "$(timeout 5 squeue -h -j "$job" 2> /dev/null)" ] && break
   sleep 0.5
 done
-[ -z "$(squeue -h -j "$job" 2> /dev/null)" ] || { squeue; show_logs; echo "FAIL: job $job still queued"; exit 1; }
+[ -z "$(timeout 5 squeue -h -j "$job" 2> /dev/null)" ] || { squeue; show_logs; echo "FAIL: job $job still queued"; exit 1; }
 n=$(find "$D/runs" -name metrics.json | wc -l)
 [ "$n" = 6 ] || { show_logs; ls -R "$D/runs"; cat "$D"/runs/slurm/*.out; echo "FAIL: $n of 6 runs have metrics.json"; exit 1; }
 grep -q "in job $job" "$D/runs/synth/alpha/lambda_dssim-0.1/stdout.log" || { echo "FAIL: run log does not show the Slurm job"; exit 1; }
 
 # A second submission has nothing left to do.
-again=$("$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
+again=$(timeout 60 "$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
 echo "$again" | grep -q "6 finished, 0 to submit" || { echo "$again"; echo "FAIL: resubmission was not a no-op"; exit 1; }
 
 "$CRPGS" report "$D/runs" -o "$D/report" || { echo "FAIL: crpgs report"; exit 1; }
