@@ -113,6 +113,15 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
                 static_cast<long long>(m.voxels.size(0)), static_cast<long long>(m.offset_masks.size(1)),
                 static_cast<long long>(m.offset_masks.to(torch::kLong).sum().item().toLong()),
                 static_cast<long long>(m.feature_sym.size(1)), m.voxel_size);
+    // What the training-time rate estimate predicted for each stream against its coded size.
+    const auto est = estimated_stream_bits(m, dec->params, *dec->components.entropy);
+    for (const auto& s : ct->sections) {
+      auto it = est.find(s.id);
+      if (it == est.end()) continue;
+      const double coded = 8.0 * double(s.payload.size());
+      std::printf("%s: estimated %.0f bits, coded %.0f bits (%+.2f%%)\n", s.id.c_str(), it->second,
+                  coded, it->second > 0 ? 100.0 * (coded / it->second - 1) : 0.0);
+    }
   }
   return 0;
 }
@@ -186,7 +195,8 @@ void add_codec_commands(CLI::App& app, GlobalOptions& g) {
   auto* cmd = app.add_subcommand("info", "Show what a .crpgs bitstream is made of: every section "
                                          "with its size in bytes and % of the file, by category");
   cmd->add_option("FILE", path, "bitstream")->required();
-  cmd->add_flag("-v,--verbose", verbose, "also decode it fully (checks every section)");
+  cmd->add_flag("-v,--verbose", verbose, "also decode it fully (checks every section) and compare "
+                                         "each stream's training-time rate estimate with its coded size");
   cmd->callback([&g] { throw CLI::RuntimeError(info(g, path, verbose)); });
 }
 

@@ -66,6 +66,11 @@ torch::Tensor normalize_positions(const torch::Tensor& positions, const torch::T
 /// as the decoder will (the encoder uses them to code, the trainer to evaluate the quantised model).
 EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, int64_t coded_dim);
 
+/// Training-time rate estimate (Σ −log2 p, the quantity the rate term minimises) of each symbol
+/// stream ("FEAT", "SCAL", "OFFS") under the given parameters.
+std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const EntropyParams& p,
+                                                   EntropyModel& entropy);
+
 /// Per-section sizes, in file order.
 struct SectionSize {
   std::string id, component;

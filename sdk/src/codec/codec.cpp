@@ -129,6 +129,24 @@ EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, i
   return predict_entropy_params(context, pos01, layout, m.q0, m.chunk);
 }
 
+std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const EntropyParams& p,
+                                                   EntropyModel& entropy) {
+  torch::NoGradGuard no_grad;
+  const auto masks = m.offset_masks.to(torch::kBool);
+  const auto a = stream_args(p, m.feature_sym, m.scaling_sym, m.offset_sym, masks,
+                             m.offset_masks.size(1));
+  std::map<std::string, double> out;
+  for (int k = 0; k < 3; ++k) {
+    const auto& s = a[size_t(k)];
+    out[kStreamIds[k]] =
+        s.symbols.numel() ? entropy.bits(s.symbols.to(torch::kFloat) * s.q, s.mean, s.scale, s.q)
+                                .sum()
+                                .item<double>()
+                          : 0.0;
+  }
+  return out;
+}
+
 const char* section_category(const std::string& id) {
   if (id == "GEOM") return "geometry";
   if (id == "FEAT") return "features";
@@ -201,7 +219,6 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   EncodeResult result;
   const EntropyParams p = coded_entropy_params(m, *c.context, Dc);
   std::array<ByteWriter, 3> streams;
-  std::array<double, 3> estimated{0, 0, 0};
   torch::NoGradGuard no_grad;
   for (int64_t s = 0; s < N; s += m.chunk) {
     const int64_t e = std::min(N, s + m.chunk);
@@ -217,14 +234,12 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
                                              a.q.contiguous());
       streams[size_t(k)].put_varint(bytes.size());
       streams[size_t(k)].put_bytes(bytes);
-      if (sym.numel())
-        estimated[size_t(k)] +=
-            c.entropy->bits(sym.to(torch::kFloat) * a.q, a.mean, a.scale, a.q).sum().item<double>();
     }
   }
+  const auto estimated = estimated_stream_bits(m, p, *c.entropy);
   for (int k = 0; k < 3; ++k) {
     Bytes payload = streams[size_t(k)].take();
-    result.estimated_vs_coded_bits[kStreamIds[k]] = {estimated[size_t(k)], 8.0 * payload.size()};
+    result.estimated_vs_coded_bits[kStreamIds[k]] = {estimated.at(kStreamIds[k]), 8.0 * payload.size()};
     CRPGS_RETURN_IF_ERROR(w.add_section(kStreamIds[k], "org.crpgs.entropy." + c.entropy->type_name(),
                                         1, 0, std::move(payload)));
   }
