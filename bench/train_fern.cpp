@@ -43,14 +43,9 @@ std::unique_ptr<Trainer> make_fern_trainer(benchmark::State& state) {
   TrainOptions to;  // full schedule
   AnchorModelOptions mo;
   mo.voxel_size = env_or("CRPGS_BENCH_VOXEL", 0.01);
-  crpgs_create_args args{};
-  args.feature_dim = 50;
-  args.n_offsets = 10;
-  YAML::Node block;
-  block["type"] = "identity";
-  auto features = create_component<FeatureModel>(builtin_registry(), block, args);
+  auto features = identity_feature_model(50);
   auto t = make_trainer(to, mo, std::move(ds).value(), std::make_shared<raster::CpuRasterizer>(0),
-                        features.value());
+                        features);
   if (!t.ok()) {
     state.SkipWithError(t.status().to_string().c_str());
     return nullptr;

@@ -6,18 +6,12 @@
 #include <ostream>
 
 #include "crpgs/components.h"
+#include "test_registry.h"
 
 namespace crpgs {
 namespace {
 
-ComponentRegistry& registry() {
-  static ComponentRegistry r = [] {
-    ComponentRegistry reg = builtin_registry();
-    reg.load_plugins({CRPGS_PLUGIN_BUILD_DIR});
-    return reg;
-  }();
-  return r;
-}
+const ComponentRegistry& registry() { return test::test_registry(); }
 
 struct ComponentCase {
   crpgs_kind kind;

@@ -12,17 +12,6 @@
 namespace crpgs {
 namespace {
 
-std::shared_ptr<FeatureModel> identity_features(int dim) {
-  crpgs_create_args args{};
-  args.feature_dim = dim;
-  args.n_offsets = 10;
-  YAML::Node block;
-  block["type"] = "identity";
-  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
-  if (!f.ok()) throw StatusError(f.status());
-  return f.value();
-}
-
 struct SmallScene {
   Dataset ds;
   std::shared_ptr<Rasterizer> raster = std::make_shared<raster::CpuRasterizer>(1);
@@ -52,7 +41,7 @@ AnchorModelOptions small_options() {
 
 std::unique_ptr<AnchorModel> make_model(const SmallScene& s, const AnchorModelOptions& o,
                                         uint64_t seed = 3) {
-  auto m = AnchorModel::create(o, identity_features(50), s.init(),
+  auto m = AnchorModel::create(o, identity_feature_model(50), s.init(),
                                at::make_generator<at::CPUGeneratorImpl>(seed));
   if (!m.ok()) throw StatusError(m.status());
   return std::move(m).value();

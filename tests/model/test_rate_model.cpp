@@ -16,17 +16,6 @@ namespace {
 
 using torch::indexing::Slice;
 
-std::shared_ptr<FeatureModel> identity_features() {
-  crpgs_create_args args{};
-  args.feature_dim = 50;
-  args.n_offsets = 10;
-  YAML::Node block;
-  block["type"] = "identity";
-  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
-  if (!f.ok()) throw StatusError(f.status());
-  return f.value();
-}
-
 struct RateScene {
   Dataset ds;
   std::shared_ptr<Rasterizer> raster = std::make_shared<raster::CpuRasterizer>(1);
@@ -49,7 +38,7 @@ struct RateScene {
     AnchorModelOptions o;
     o.voxel_size = 0.1;
     auto gen = at::make_generator<at::CPUGeneratorImpl>(5);
-    auto m = AnchorModel::create(o, identity_features(), in, gen);
+    auto m = AnchorModel::create(o, identity_feature_model(50), in, gen);
     if (!m.ok()) throw StatusError(m.status());
     RateSetup rs = test::make_rate_setup(50, 10, ro);
     Status st = (*m)->attach_rate(rs.context, rs.entropy, rs.options);
@@ -246,7 +235,7 @@ TEST(RateModel, FromDecodedRendersExactlyLikeTheQuantisedModel) {
   EXPECT_FALSE(torch::equal(raw, quantised));  // quantisation changes something
   EXPECT_TRUE(torch::equal(render(*m), raw));  // and clearing restores the raw model
 
-  auto d = AnchorModel::from_decoded(m->options(), identity_features(), q.positions, q.features,
+  auto d = AnchorModel::from_decoded(m->options(), identity_feature_model(50), q.positions, q.features,
                                      q.scaling, q.offsets, q.offset_masks, m->mlp_tensors(),
                                      m->bounds(), m->voxel_size());
   ASSERT_TRUE(d.ok()) << d.status().to_string();
@@ -259,12 +248,12 @@ TEST(RateModel, FromDecodedRendersExactlyLikeTheQuantisedModel) {
     EXPECT_TRUE(torch::equal((*d)->mlp_tensors().at(name), t)) << name;
   // Malformed inputs are refused with a message.
   auto bad = AnchorModel::from_decoded(
-      m->options(), identity_features(), q.positions, q.features.index({Slice(), Slice(0, 10)}),
+      m->options(), identity_feature_model(50), q.positions, q.features.index({Slice(), Slice(0, 10)}),
       q.scaling, q.offsets, q.offset_masks, m->mlp_tensors(), m->bounds(), m->voxel_size());
   EXPECT_FALSE(bad.ok());
   auto mlps = m->mlp_tensors();
   mlps.erase("mlp_cov.b2");
-  auto missing = AnchorModel::from_decoded(m->options(), identity_features(), q.positions,
+  auto missing = AnchorModel::from_decoded(m->options(), identity_feature_model(50), q.positions,
                                            q.features, q.scaling, q.offsets, q.offset_masks, mlps,
                                            m->bounds(), m->voxel_size());
   ASSERT_FALSE(missing.ok());
@@ -281,7 +270,7 @@ TEST(RateModel, AttachRejectsAContextOfTheWrongWidth) {
   AnchorModelOptions o;
   o.voxel_size = 0.1;
   auto plain =
-      AnchorModel::create(o, identity_features(), in, at::make_generator<at::CPUGeneratorImpl>(1));
+      AnchorModel::create(o, identity_feature_model(50), in, at::make_generator<at::CPUGeneratorImpl>(1));
   ASSERT_TRUE(plain.ok());
   Status st = (*plain)->attach_rate(rs.context, rs.entropy, rs.options);
   EXPECT_FALSE(st.ok());

@@ -9,17 +9,11 @@
 
 #include "crpgs/components.h"
 #include "crpgs/config.h"
+#include "test_registry.h"
 
 namespace crpgs::test {
 
-inline ComponentRegistry& plugin_registry() {
-  static ComponentRegistry r = [] {
-    ComponentRegistry reg = builtin_registry();
-    reg.load_plugins({CRPGS_PLUGIN_BUILD_DIR});
-    return reg;
-  }();
-  return r;
-}
+inline const ComponentRegistry& plugin_registry() { return test_registry(); }
 
 /// `section: {type: ..., extra}` resolved and built; fails the test on error.
 template <typename T>

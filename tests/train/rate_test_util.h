@@ -10,17 +10,11 @@
 #include "crpgs/components.h"
 #include "crpgs/config.h"
 #include "crpgs/trainer.h"
+#include "test_registry.h"
 
 namespace crpgs::test {
 
-inline const ComponentRegistry& rate_registry() {
-  static const ComponentRegistry r = [] {
-    ComponentRegistry reg = builtin_registry();
-    reg.load_plugins({CRPGS_PLUGIN_BUILD_DIR});
-    return reg;
-  }();
-  return r;
-}
+inline const ComponentRegistry& rate_registry() { return test_registry(); }
 
 /// "" when both plugins are loadable, else why not (for GTEST_SKIP).
 inline std::string rate_plugins_missing() {

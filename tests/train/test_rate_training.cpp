@@ -23,17 +23,6 @@ namespace {
     if (!why.empty()) GTEST_SKIP() << why;                \
   } while (0)
 
-std::shared_ptr<FeatureModel> identity_features() {
-  crpgs_create_args args{};
-  args.feature_dim = 50;
-  args.n_offsets = 10;
-  YAML::Node block;
-  block["type"] = "identity";
-  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
-  if (!f.ok()) throw StatusError(f.status());
-  return f.value();
-}
-
 Dataset tiny_scene() {
   raster::CpuRasterizer r(1);
   SyntheticSceneOptions o;
@@ -67,7 +56,7 @@ std::unique_ptr<Trainer> rate_trainer(const Dataset& ds, const TrainOptions& to,
   AnchorModelOptions mo;
   mo.voxel_size = 0.08;
   mo.lr.max_steps = to.schedule.iterations;
-  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_features(),
+  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_feature_model(50),
                         test::make_rate_setup(50, 10, ro));
   if (!t.ok()) throw StatusError(t.status());
   return std::move(t).value();

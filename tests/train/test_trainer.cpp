@@ -16,17 +16,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::shared_ptr<FeatureModel> identity_features() {
-  crpgs_create_args args{};
-  args.feature_dim = 50;
-  args.n_offsets = 10;
-  YAML::Node block;
-  block["type"] = "identity";
-  auto f = create_component<FeatureModel>(builtin_registry(), block, args);
-  if (!f.ok()) throw StatusError(f.status());
-  return f.value();
-}
-
 Dataset scene(int w, int h, int views) {
   raster::CpuRasterizer r(1);
   SyntheticSceneOptions o;
@@ -46,7 +35,7 @@ std::unique_ptr<Trainer> trainer(const Dataset& ds, const TrainOptions& to) {
   mo.voxel_size = 0.08;
   mo.lr.max_steps = to.schedule.iterations;
   auto t =
-      make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_features());
+      make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_feature_model(50));
   if (!t.ok()) throw StatusError(t.status());
   return std::move(t).value();
 }

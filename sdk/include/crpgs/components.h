@@ -34,6 +34,10 @@ StatusOr<std::shared_ptr<T>> create_component(const ComponentRegistry& registry,
   return std::static_pointer_cast<T>(std::move(raw).value());
 }
 
+/// The built-in `identity` feature model of width `feature_dim` (plain HAC: the MLPs see the
+/// coded feature itself).
+std::shared_ptr<FeatureModel> identity_feature_model(int feature_dim);
+
 /// A registry holding the built-in components (cpu rasterizer, identity features, ...).
 ComponentRegistry builtin_registry();
 

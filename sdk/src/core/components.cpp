@@ -33,6 +33,12 @@ CRPGS_DESCRIPTOR_FUNCTION(identity_features_descriptor, CRPGS_KIND_FEATURES, Fea
 
 }  // namespace
 
+std::shared_ptr<FeatureModel> identity_feature_model(int feature_dim) {
+  crpgs_create_args args{};
+  args.feature_dim = feature_dim;
+  return std::make_shared<IdentityFeatures>(YAML::Node(), args);
+}
+
 ComponentRegistry builtin_registry() {
   ComponentRegistry r;
   for (auto* d : {cpu_rasterizer_descriptor(), identity_features_descriptor()}) {
