@@ -27,7 +27,8 @@ ComponentRegistry load_registry(const GlobalOptions& g);
 /// Loads `path` (or `fallback_yaml` when path is empty), applies --set, resolves against the
 /// registry. Errors are returned with file, line, column and YAML path.
 StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
-                             const ComponentRegistry& registry, const std::string& fallback_yaml = "");
+                             const ComponentRegistry& registry,
+                             const std::string& fallback_yaml = "");
 
 /// Prints rows as aligned columns (first row is the header).
 void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out = stdout);
@@ -42,8 +43,8 @@ struct BitstreamReport {
   std::vector<SectionSize> sections;
   std::map<std::string, std::pair<double, double>> estimated_vs_coded_bits;
   double encode_seconds = 0, decode_seconds = 0;
-  double quantized_psnr = 0;  ///< training-side quantised model, test views
-  double decoded_psnr = 0;    ///< the model decoded from the file on disk
+  double quantized_psnr = 0;                         ///< training-side quantised model, test views
+  double decoded_psnr = 0;                           ///< the model decoded from the file on disk
   std::vector<std::array<double, 3>> decoded_views;  ///< psnr, ssim, render seconds per view
   std::vector<std::string> view_names;
 };
@@ -56,7 +57,8 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Conf
                                                     const std::string& png_dir);
 void print_bitstream_report(const BitstreamReport& r);
 /// `crpgs eval FILE.crpgs`: decode, then evaluate on the test views of the dataset in its config.
-int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir);
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
+                        const std::string& png_dir);
 
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);

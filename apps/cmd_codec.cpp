@@ -17,13 +17,16 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
                                                     const std::string& path,
                                                     const std::string& png_dir) {
   using clock = std::chrono::steady_clock;
-  auto secs = [](clock::time_point a) { return std::chrono::duration<double>(clock::now() - a).count(); };
+  auto secs = [](clock::time_point a) {
+    return std::chrono::duration<double>(clock::now() - a).count();
+  };
   BitstreamReport rep;
   rep.path = path;
   auto t0 = clock::now();
   QuantizedAttributes q;
   CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q));
-  CRPGS_ASSIGN_OR_RETURN(EncodeResult enc, encode_model(coded, cfg, codec_components_of(t.model())));
+  CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
+                         encode_model(coded, cfg, codec_components_of(t.model())));
   CRPGS_RETURN_IF_ERROR(write_file_atomic(path, enc.bytes));
   rep.encode_seconds = secs(t0);
   rep.estimated_vs_coded_bits = enc.estimated_vs_coded_bits;
@@ -82,7 +85,8 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
               path.c_str(), static_cast<unsigned long long>(ct->file_size), total / 1048576.0,
               ct->header.major, ct->header.minor,
               static_cast<unsigned long long>(ct->header.config_hash), ct->sections.size());
-  std::vector<std::vector<std::string>> rows = {{"SECTION", "CATEGORY", "COMPONENT", "VERSION", "BYTES", "%"}};
+  std::vector<std::vector<std::string>> rows = {
+      {"SECTION", "CATEGORY", "COMPONENT", "VERSION", "BYTES", "%"}};
   std::map<std::string, uint64_t> by_category;
   char pct[32];
   for (const auto& s : ct->sections) {
@@ -108,11 +112,12 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
     auto dec = decode_model(bytes.value(), r);
     if (!dec.ok()) return report_error(dec.status());
     const auto& m = dec->model;
-    std::printf("\nDecoded: %lld anchors, %lld offsets per anchor (%lld active), feature width %lld, "
-                "voxel %.6g\n",
-                static_cast<long long>(m.voxels.size(0)), static_cast<long long>(m.offset_masks.size(1)),
-                static_cast<long long>(m.offset_masks.to(torch::kLong).sum().item().toLong()),
-                static_cast<long long>(m.feature_sym.size(1)), m.voxel_size);
+    std::printf(
+        "\nDecoded: %lld anchors, %lld offsets per anchor (%lld active), feature width %lld, "
+        "voxel %.6g\n",
+        static_cast<long long>(m.voxels.size(0)), static_cast<long long>(m.offset_masks.size(1)),
+        static_cast<long long>(m.offset_masks.to(torch::kLong).sum().item().toLong()),
+        static_cast<long long>(m.feature_sym.size(1)), m.voxel_size);
     // What the training-time rate estimate predicted for each stream against its coded size.
     const auto est = estimated_stream_bits(m, dec->params, *dec->components.entropy);
     for (const auto& s : ct->sections) {
@@ -179,24 +184,28 @@ int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::s
 }  // namespace
 
 /// `crpgs eval` on a file: used by cmd_train's eval when its argument is a bitstream.
-int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
+                        const std::string& png_dir) {
   return eval_bitstream(g, path, png_dir);
 }
 
 void add_codec_commands(CLI::App& app, GlobalOptions& g) {
   static std::string path, run_dir, out;
   static bool verbose = false;
-  auto* enc = app.add_subcommand("encode", "Write the bitstream of a trained run (HAC/CRP-GS "
-                                           "configs), decode it back and check it");
+  auto* enc = app.add_subcommand("encode",
+                                 "Write the bitstream of a trained run (HAC/CRP-GS "
+                                 "configs), decode it back and check it");
   enc->add_option("RUN_DIR", run_dir, "directory written by `crpgs train`")->required();
   enc->add_option("-o,--output", out, "bitstream file")->required();
   enc->callback([&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out)); });
 
-  auto* cmd = app.add_subcommand("info", "Show what a .crpgs bitstream is made of: every section "
-                                         "with its size in bytes and % of the file, by category");
+  auto* cmd = app.add_subcommand("info",
+                                 "Show what a .crpgs bitstream is made of: every section "
+                                 "with its size in bytes and % of the file, by category");
   cmd->add_option("FILE", path, "bitstream")->required();
-  cmd->add_flag("-v,--verbose", verbose, "also decode it fully (checks every section) and compare "
-                                         "each stream's training-time rate estimate with its coded size");
+  cmd->add_flag("-v,--verbose", verbose,
+                "also decode it fully (checks every section) and compare "
+                "each stream's training-time rate estimate with its coded size");
   cmd->callback([&g] { throw CLI::RuntimeError(info(g, path, verbose)); });
 }
 

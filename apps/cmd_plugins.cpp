@@ -22,7 +22,8 @@ int list_plugins(const GlobalOptions& g) {
   for (const auto& d : r.searched_dirs()) std::printf("  %s\n", d.c_str());
   if (!r.rejected().empty()) {
     std::printf("\nRejected files (%zu):\n", r.rejected().size());
-    for (const auto& x : r.rejected()) std::printf("  %s\n    %s\n", x.path.c_str(), x.reason.c_str());
+    for (const auto& x : r.rejected())
+      std::printf("  %s\n    %s\n", x.path.c_str(), x.reason.c_str());
   }
   return 0;
 }
@@ -57,16 +58,18 @@ int describe(const GlobalOptions& g, const std::string& type, const std::string&
 }  // namespace
 
 void add_plugin_commands(CLI::App& app, GlobalOptions& g) {
-  auto* plugins = app.add_subcommand("plugins", "List the components found (built-in and plugins), "
-                                                "where plugins were searched, and why files were rejected");
+  auto* plugins = app.add_subcommand("plugins",
+                                     "List the components found (built-in and plugins), "
+                                     "where plugins were searched, and why files were rejected");
   plugins->callback([&g, plugins] {
     if (plugins->get_subcommands().empty()) throw CLI::RuntimeError(list_plugins(g));
   });
   auto* desc = plugins->add_subcommand("describe", "Print the config schema of a component type");
   static std::string type, kind;
   desc->add_option("TYPE", type, "component type, e.g. cpu, identity, hash_grid")->required();
-  desc->add_option("--kind", kind, "entropy | context | features | rasterizer (when a type name "
-                                   "exists in several kinds)");
+  desc->add_option("--kind", kind,
+                   "entropy | context | features | rasterizer (when a type name "
+                   "exists in several kinds)");
   desc->callback([&g] { throw CLI::RuntimeError(describe(g, type, kind)); });
 }
 
@@ -74,8 +77,9 @@ void add_config_commands(CLI::App& app, GlobalOptions& g) {
   auto* config = app.add_subcommand("config", "Work with YAML run configurations");
   config->require_subcommand(1);
   auto* check = config->add_subcommand(
-      "check", "Validate a config against every schema (core sections and components) and print "
-               "the fully resolved config");
+      "check",
+      "Validate a config against every schema (core sections and components) and print "
+      "the fully resolved config");
   static std::string file;
   static bool quiet = false;
   check->add_option("FILE", file, "YAML config")->required();

@@ -28,8 +28,8 @@ class CliProgress final : public ProgressCallback {
     }
     char extra[160];
     std::snprintf(extra, sizeof extra, "loss %.4f  test PSNR %s  anchors %lld  gaussians %lld",
-                  p.loss, last_psnr_ > 0 ? (std::to_string(last_psnr_).substr(0, 5) + " dB").c_str()
-                                         : "-",
+                  p.loss,
+                  last_psnr_ > 0 ? (std::to_string(last_psnr_).substr(0, 5) + " dB").c_str() : "-",
                   static_cast<long long>(p.anchors), static_cast<long long>(p.gaussians));
     last_extra_ = extra;
     bar_.update(p.iteration, extra);
@@ -101,8 +101,8 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   experiments::RunMetrics m;
   if (t.model().has_rate()) {
     // HAC/CRP-GS: the result is the bitstream; everything reported comes from decoding it.
-    auto rep = write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs",
-                                         out_dir + "/renders");
+    auto rep =
+        write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/renders");
     if (!rep.ok()) return report_error(rep.status());
     print_bitstream_report(rep.value());
     m.size_bytes = rep->file_bytes;
@@ -129,7 +129,8 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
     for (const auto& v : eval->views)
       m.views.push_back({v.name, v.psnr, v.ssim, eval->seconds_per_view});
   }
-  m.method = cfg.file().empty() || cfg.file()[0] == '<' ? "demo" : fs::path(cfg.file()).stem().string();
+  m.method =
+      cfg.file().empty() || cfg.file()[0] == '<' ? "demo" : fs::path(cfg.file()).stem().string();
   m.dataset = t.dataset().name;
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(cfg.hash()));
@@ -160,7 +161,8 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   static std::string config, out_dir, run_dir, png_dir;
   static bool resume = false;
 
-  auto* train = app.add_subcommand("train", "Train an anchor model from posed images (config-driven)");
+  auto* train =
+      app.add_subcommand("train", "Train an anchor model from posed images (config-driven)");
   train->add_option("-c,--config", config, "YAML run config (see configs/)")->required();
   train->add_option("-o,--output", out_dir, "run directory (config, checkpoint, renders)")
       ->default_val("runs/train");
@@ -174,9 +176,10 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   });
 
   auto* eval = app.add_subcommand(
-      "eval", "Render the test views of a trained run and report PSNR and SSIM per view and mean "
-              "(8-bit PNG round trip; SSIM 11x11, sigma 1.5). LPIPS is not computed: it needs "
-              "pretrained VGG weights that cannot be shipped or downloaded here.");
+      "eval",
+      "Render the test views of a trained run and report PSNR and SSIM per view and mean "
+      "(8-bit PNG round trip; SSIM 11x11, sigma 1.5). LPIPS is not computed: it needs "
+      "pretrained VGG weights that cannot be shipped or downloaded here.");
   eval->add_option("RUN", run_dir, "directory written by `crpgs train`, or a .crpgs bitstream")
       ->required();
   eval->add_option("-o,--output", png_dir, "where to write the PNGs (default RUN_DIR/renders)");
@@ -198,15 +201,17 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   });
 
   auto* demo = app.add_subcommand(
-      "demo", "Generate the embedded synthetic scene, train on it with the fast schedule, evaluate");
+      "demo",
+      "Generate the embedded synthetic scene, train on it with the fast schedule, evaluate");
   demo->add_option("-o,--output", out_dir, "run directory")->default_val("runs/demo");
   demo->add_option("--set", g.sets, "override a key of the demo config");
   demo->callback([&g] {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config("", g, r, kDemoConfig);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    std::printf("crpgs demo: synthetic scene -> train (fast schedule) -> bitstream -> decode -> "
-                "evaluate the decoded model\n");
+    std::printf(
+        "crpgs demo: synthetic scene -> train (fast schedule) -> bitstream -> decode -> "
+        "evaluate the decoded model\n");
     throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, false));
   });
 }

@@ -8,8 +8,9 @@
 int main(int argc, char** argv) {
   using namespace crpgs::cli;
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // logs show progress lines as they happen
-  CLI::App app{"crpgs: compress 3D Gaussian Splatting scenes with CRP-GS (cross-representation "
-               "priors) on the HAC / Scaffold-GS anchor representation"};
+  CLI::App app{
+      "crpgs: compress 3D Gaussian Splatting scenes with CRP-GS (cross-representation "
+      "priors) on the HAC / Scaffold-GS anchor representation"};
   app.require_subcommand(1);
   const auto bi = crpgs::build_info();
   app.set_version_flag("--version", std::string("crpgs ") + bi.version + " (" + bi.compiler +

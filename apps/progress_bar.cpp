@@ -22,8 +22,11 @@ std::string format_duration(double s) {
 }
 
 ProgressBar::ProgressBar(std::string label, long total, FILE* out)
-    : label_(std::move(label)), total_(std::max(1L, total)), out_(out),
-      tty_(isatty(fileno(out)) != 0), start_(std::chrono::steady_clock::now()),
+    : label_(std::move(label)),
+      total_(std::max(1L, total)),
+      out_(out),
+      tty_(isatty(fileno(out)) != 0),
+      start_(std::chrono::steady_clock::now()),
       last_draw_(start_ - std::chrono::hours(1)) {}
 
 ProgressBar::~ProgressBar() {

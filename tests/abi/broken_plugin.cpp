@@ -15,7 +15,8 @@ namespace {
   *out = &object;
   return CRPGS_PLUGIN_OK;
 }
-[[maybe_unused]] int create_fails(const char*, const crpgs_create_args*, void**, char* err, size_t len) {
+[[maybe_unused]] int create_fails(const char*, const crpgs_create_args*, void**, char* err,
+                                  size_t len) {
   std::snprintf(err, len, "deliberate failure: the test plugin refuses to build");
   return CRPGS_PLUGIN_ERROR;
 }
@@ -23,12 +24,21 @@ namespace {
 }  // namespace
 
 #ifdef BROKEN_NOT_A_PLUGIN
-extern "C" __attribute__((visibility("default"))) int some_other_function() { return 42; }
+extern "C" __attribute__((visibility("default"))) int some_other_function() {
+  return 42;
+}
 #else
 extern "C" __attribute__((visibility("default"))) const crpgs_plugin_descriptor* crpgs_plugin_v1() {
-  static crpgs_plugin_descriptor d = {CRPGS_PLUGIN_ABI_VERSION, CRPGS_KIND_FEATURES,
-                                      "org.crpgs.test." BROKEN_TYPE, BROKEN_TYPE, 1, 0,
-                                      CRPGS_THIS_BUILD_INFO, "[]", &create_ok, &destroy};
+  static crpgs_plugin_descriptor d = {CRPGS_PLUGIN_ABI_VERSION,
+                                      CRPGS_KIND_FEATURES,
+                                      "org.crpgs.test." BROKEN_TYPE,
+                                      BROKEN_TYPE,
+                                      1,
+                                      0,
+                                      CRPGS_THIS_BUILD_INFO,
+                                      "[]",
+                                      &create_ok,
+                                      &destroy};
 #ifdef BROKEN_WRONG_ABI
   d.abi_version = CRPGS_PLUGIN_ABI_VERSION + 41;
 #endif

@@ -14,7 +14,9 @@
 namespace crpgs {
 namespace {
 
-const ComponentRegistry& registry() { return test::test_registry(); }
+const ComponentRegistry& registry() {
+  return test::test_registry();
+}
 
 struct Fixture {
   Config config;
@@ -24,22 +26,25 @@ struct Fixture {
 
 /// A small random coded model with the real hash_grid context and gaussian entropy model.
 StatusOr<Fixture> make_fixture(int64_t n, uint64_t seed) {
-  if (!registry().find(CRPGS_KIND_CONTEXT, "hash_grid") || !registry().find(CRPGS_KIND_ENTROPY, "gaussian"))
+  if (!registry().find(CRPGS_KIND_CONTEXT, "hash_grid") ||
+      !registry().find(CRPGS_KIND_ENTROPY, "gaussian"))
     return Status(StatusCode::kNotFound, "hash_grid/gaussian plugins not built");
   auto raw = Config::from_string(
-      "context: {type: hash_grid}\nentropy: {type: gaussian}\nmodel: {n_offsets: 4, feature_dim: 8}\n",
+      "context: {type: hash_grid}\nentropy: {type: gaussian}\nmodel: {n_offsets: 4, feature_dim: "
+      "8}\n",
       "codec_test.yaml");
   if (!raw.ok()) return raw.status();
   Fixture f;
   CRPGS_ASSIGN_OR_RETURN(f.config, raw->resolve(registry()));
   crpgs_create_args args = create_args_for(f.config);
-  CRPGS_ASSIGN_OR_RETURN(f.components.features,
-                         create_component<FeatureModel>(registry(), f.config.section("features"), args));
+  CRPGS_ASSIGN_OR_RETURN(
+      f.components.features,
+      create_component<FeatureModel>(registry(), f.config.section("features"), args));
   args.coded_dim = int32_t(f.components.features->coded_dim());
-  CRPGS_ASSIGN_OR_RETURN(f.components.context,
-                         create_component<ContextModel>(registry(), f.config.section("context"), args));
-  CRPGS_ASSIGN_OR_RETURN(f.components.entropy,
-                         create_component<EntropyModel>(registry(), f.config.section("entropy"), args));
+  CRPGS_ASSIGN_OR_RETURN(f.components.context, create_component<ContextModel>(
+                                                   registry(), f.config.section("context"), args));
+  CRPGS_ASSIGN_OR_RETURN(f.components.entropy, create_component<EntropyModel>(
+                                                   registry(), f.config.section("entropy"), args));
 
   std::mt19937 rng{static_cast<uint32_t>(seed)};
   std::uniform_int_distribution<int32_t> coord(-200, 200);
@@ -136,8 +141,10 @@ TEST(Codec, CorruptAndTruncatedFilesAreRefused) {
   auto enc = encode_model(f->model, f->config, f->components);
   ASSERT_TRUE(enc.ok()) << enc.status().to_string();
   const auto& good = enc->bytes;
-  for (size_t len : {size_t(0), size_t(3), size_t(27), good.size() / 3, good.size() / 2, good.size() - 1}) {
-    auto dec = decode_model(std::vector<uint8_t>(good.begin(), good.begin() + long(len)), registry());
+  for (size_t len :
+       {size_t(0), size_t(3), size_t(27), good.size() / 3, good.size() / 2, good.size() - 1}) {
+    auto dec =
+        decode_model(std::vector<uint8_t>(good.begin(), good.begin() + long(len)), registry());
     EXPECT_FALSE(dec.ok()) << "truncated to " << len;
     EXPECT_FALSE(dec.status().message().empty());
   }

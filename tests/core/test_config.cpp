@@ -18,10 +18,18 @@ int fake_create(const char*, const crpgs_create_args*, void** out, char*, size_t
 }
 void fake_destroy(void*) {}
 
-const crpgs_plugin_descriptor* fake_descriptor(crpgs_kind kind, const char* type, const char* schema) {
-  auto* d = new crpgs_plugin_descriptor{CRPGS_PLUGIN_ABI_VERSION, static_cast<uint32_t>(kind),
-                                        "org.test.fake", type, 1, 0, host_build_info(), schema,
-                                        &fake_create, &fake_destroy};
+const crpgs_plugin_descriptor* fake_descriptor(crpgs_kind kind, const char* type,
+                                               const char* schema) {
+  auto* d = new crpgs_plugin_descriptor{CRPGS_PLUGIN_ABI_VERSION,
+                                        static_cast<uint32_t>(kind),
+                                        "org.test.fake",
+                                        type,
+                                        1,
+                                        0,
+                                        host_build_info(),
+                                        schema,
+                                        &fake_create,
+                                        &fake_destroy};
   return d;
 }
 
@@ -29,11 +37,12 @@ ComponentRegistry test_registry() {
   ComponentRegistry r;
   EXPECT_TRUE(r.add_builtin(fake_descriptor(CRPGS_KIND_RASTERIZER, "cpu", "[]")).ok());
   EXPECT_TRUE(r.add_builtin(fake_descriptor(CRPGS_KIND_FEATURES, "identity", "[]")).ok());
-  EXPECT_TRUE(r.add_builtin(fake_descriptor(
-                                CRPGS_KIND_FEATURES, "sfa",
-                                "- {key: ratio, type: float, default: 0.4, min: 0, max: 1, doc: shared}\n"
-                                "- {key: mode, type: choice, default: grid, choices: [grid, plane], doc: m}\n"
-                                "- {key: levels, type: int_list, default: [1, 2], min: 1, doc: l}\n"))
+  EXPECT_TRUE(r
+                  .add_builtin(fake_descriptor(
+                      CRPGS_KIND_FEATURES, "sfa",
+                      "- {key: ratio, type: float, default: 0.4, min: 0, max: 1, doc: shared}\n"
+                      "- {key: mode, type: choice, default: grid, choices: [grid, plane], doc: m}\n"
+                      "- {key: levels, type: int_list, default: [1, 2], min: 1, doc: l}\n"))
                   .ok());
   return r;
 }
@@ -60,9 +69,10 @@ TEST(Schema, ParsesAndRoundTrips) {
 
 TEST(Schema, RejectsBrokenSchemas) {
   EXPECT_FALSE(Schema::parse("- {key: a, type: nosuchtype, default: 1}").ok());
-  EXPECT_FALSE(Schema::parse("- {key: a, type: int}").ok());                      // no default
-  EXPECT_FALSE(Schema::parse("- {key: a, type: int, default: 5, max: 2}").ok());  // default out of range
-  EXPECT_FALSE(Schema::parse("- {key: a, type: choice, default: x}").ok());       // no choices
+  EXPECT_FALSE(Schema::parse("- {key: a, type: int}").ok());  // no default
+  EXPECT_FALSE(
+      Schema::parse("- {key: a, type: int, default: 5, max: 2}").ok());      // default out of range
+  EXPECT_FALSE(Schema::parse("- {key: a, type: choice, default: x}").ok());  // no choices
   EXPECT_FALSE(Schema::parse("{not: a list}").ok());
   EXPECT_FALSE(Schema::parse("- [unclosed").ok());
 }
@@ -75,7 +85,7 @@ TEST(Config, ResolvesDefaultsAndComponents) {
   EXPECT_DOUBLE_EQ(r->section("features")["ratio"].as<double>(), 0.2);
   EXPECT_EQ(r->section("features")["mode"].as<std::string>(), "grid");
   EXPECT_EQ(r->section("rasterizer")["type"].as<std::string>(), "cpu");  // default type filled
-  EXPECT_EQ(r->section("dataset")["test_every"].as<int>(), 8);          // core default filled
+  EXPECT_EQ(r->section("dataset")["test_every"].as<int>(), 8);           // core default filled
   // Resolving a resolved config is the identity.
   auto again = Config::from_string(r->dump(), "again.yaml");
   ASSERT_TRUE(again.ok());

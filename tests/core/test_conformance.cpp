@@ -11,7 +11,9 @@
 namespace crpgs {
 namespace {
 
-const ComponentRegistry& registry() { return test::test_registry(); }
+const ComponentRegistry& registry() {
+  return test::test_registry();
+}
 
 struct ComponentCase {
   crpgs_kind kind;
@@ -105,11 +107,11 @@ INSTANTIATE_TEST_SUITE_P(AllComponents, Conformance, ::testing::ValuesIn(all_com
                          });
 
 TEST(ConformanceRegistry, HasTheBuiltinsAndInTreePlugins) {
-  for (auto [kind, type] : std::vector<std::pair<crpgs_kind, std::string>>{
-           {CRPGS_KIND_RASTERIZER, "cpu"},
-           {CRPGS_KIND_FEATURES, "identity"},
-           {CRPGS_KIND_ENTROPY, "gaussian"},
-           {CRPGS_KIND_CONTEXT, "link_none"}})
+  for (auto [kind, type] :
+       std::vector<std::pair<crpgs_kind, std::string>>{{CRPGS_KIND_RASTERIZER, "cpu"},
+                                                       {CRPGS_KIND_FEATURES, "identity"},
+                                                       {CRPGS_KIND_ENTROPY, "gaussian"},
+                                                       {CRPGS_KIND_CONTEXT, "link_none"}})
     EXPECT_NE(registry().find(kind, type), nullptr) << kind_name(kind) << "/" << type;
   EXPECT_TRUE(registry().rejected().empty())
       << registry().rejected()[0].path << ": " << registry().rejected()[0].reason;

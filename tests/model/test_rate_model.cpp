@@ -235,9 +235,9 @@ TEST(RateModel, FromDecodedRendersExactlyLikeTheQuantisedModel) {
   EXPECT_FALSE(torch::equal(raw, quantised));  // quantisation changes something
   EXPECT_TRUE(torch::equal(render(*m), raw));  // and clearing restores the raw model
 
-  auto d = AnchorModel::from_decoded(m->options(), identity_feature_model(50), q.positions, q.features,
-                                     q.scaling, q.offsets, q.offset_masks, m->mlp_tensors(),
-                                     m->bounds(), m->voxel_size());
+  auto d = AnchorModel::from_decoded(m->options(), identity_feature_model(50), q.positions,
+                                     q.features, q.scaling, q.offsets, q.offset_masks,
+                                     m->mlp_tensors(), m->bounds(), m->voxel_size());
   ASSERT_TRUE(d.ok()) << d.status().to_string();
   EXPECT_EQ((*d)->num_anchors(), q.index.size(0));
   EXPECT_TRUE(torch::equal((*d)->bounds(), m->bounds()));
@@ -247,9 +247,10 @@ TEST(RateModel, FromDecodedRendersExactlyLikeTheQuantisedModel) {
   for (const auto& [name, t] : m->mlp_tensors())
     EXPECT_TRUE(torch::equal((*d)->mlp_tensors().at(name), t)) << name;
   // Malformed inputs are refused with a message.
-  auto bad = AnchorModel::from_decoded(
-      m->options(), identity_feature_model(50), q.positions, q.features.index({Slice(), Slice(0, 10)}),
-      q.scaling, q.offsets, q.offset_masks, m->mlp_tensors(), m->bounds(), m->voxel_size());
+  auto bad =
+      AnchorModel::from_decoded(m->options(), identity_feature_model(50), q.positions,
+                                q.features.index({Slice(), Slice(0, 10)}), q.scaling, q.offsets,
+                                q.offset_masks, m->mlp_tensors(), m->bounds(), m->voxel_size());
   EXPECT_FALSE(bad.ok());
   auto mlps = m->mlp_tensors();
   mlps.erase("mlp_cov.b2");
@@ -269,8 +270,8 @@ TEST(RateModel, AttachRejectsAContextOfTheWrongWidth) {
   for (const auto& p : s.ds.points) in.points.push_back({p.x(), p.y(), p.z()});
   AnchorModelOptions o;
   o.voxel_size = 0.1;
-  auto plain =
-      AnchorModel::create(o, identity_feature_model(50), in, at::make_generator<at::CPUGeneratorImpl>(1));
+  auto plain = AnchorModel::create(o, identity_feature_model(50), in,
+                                   at::make_generator<at::CPUGeneratorImpl>(1));
   ASSERT_TRUE(plain.ok());
   Status st = (*plain)->attach_rate(rs.context, rs.entropy, rs.options);
   EXPECT_FALSE(st.ok());

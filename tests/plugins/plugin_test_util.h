@@ -13,7 +13,9 @@
 
 namespace crpgs::test {
 
-inline const ComponentRegistry& plugin_registry() { return test_registry(); }
+inline const ComponentRegistry& plugin_registry() {
+  return test_registry();
+}
 
 /// `section: {type: ..., extra}` resolved and built; fails the test on error.
 template <typename T>

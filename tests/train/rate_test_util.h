@@ -14,7 +14,9 @@
 
 namespace crpgs::test {
 
-inline const ComponentRegistry& rate_registry() { return test_registry(); }
+inline const ComponentRegistry& rate_registry() {
+  return test_registry();
+}
 
 /// "" when both plugins are loadable, else why not (for GTEST_SKIP).
 inline std::string rate_plugins_missing() {

@@ -56,8 +56,8 @@ std::unique_ptr<Trainer> rate_trainer(const Dataset& ds, const TrainOptions& to,
   AnchorModelOptions mo;
   mo.voxel_size = 0.08;
   mo.lr.max_steps = to.schedule.iterations;
-  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_feature_model(50),
-                        test::make_rate_setup(50, 10, ro));
+  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1),
+                        identity_feature_model(50), test::make_rate_setup(50, 10, ro));
   if (!t.ok()) throw StatusError(t.status());
   return std::move(t).value();
 }
@@ -275,7 +275,8 @@ TEST(RateTraining, BitstreamDecodesToTheQuantisedModel) {
   auto b = decoded.value()->generate(cam, -1, r, rs, false);
   auto img_b = r.render(b.batch, cam, rs).image;
   EXPECT_GT(a.batch.means.size(0), 0);
-  EXPECT_TRUE(torch::equal(img_a, img_b)) << "max diff " << (img_a - img_b).abs().max().item<float>();
+  EXPECT_TRUE(torch::equal(img_a, img_b))
+      << "max diff " << (img_a - img_b).abs().max().item<float>();
 }
 
 }  // namespace

@@ -34,8 +34,8 @@ std::unique_ptr<Trainer> trainer(const Dataset& ds, const TrainOptions& to) {
   AnchorModelOptions mo;
   mo.voxel_size = 0.08;
   mo.lr.max_steps = to.schedule.iterations;
-  auto t =
-      make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1), identity_feature_model(50));
+  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1),
+                        identity_feature_model(50));
   if (!t.ok()) throw StatusError(t.status());
   return std::move(t).value();
 }

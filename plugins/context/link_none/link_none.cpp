@@ -26,5 +26,5 @@ class LinkNone final : public ContextModel {
 }  // namespace
 }  // namespace crpgs
 
-CRPGS_PLUGIN(CRPGS_KIND_CONTEXT, crpgs::ContextModel, crpgs::LinkNone, "org.crpgs.context.link_none",
-             "link_none", 1, 0, "[]")
+CRPGS_PLUGIN(CRPGS_KIND_CONTEXT, crpgs::ContextModel, crpgs::LinkNone,
+             "org.crpgs.context.link_none", "link_none", 1, 0, "[]")

@@ -15,8 +15,8 @@ namespace crpgs {
 
 Status write_file_atomic(const std::string& path, std::string_view bytes);
 inline Status write_file_atomic(const std::string& path, const std::vector<uint8_t>& bytes) {
-  return write_file_atomic(path, std::string_view(reinterpret_cast<const char*>(bytes.data()),
-                                                  bytes.size()));
+  return write_file_atomic(
+      path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 StatusOr<std::vector<uint8_t>> read_file_bytes(const std::string& path);
 

@@ -63,13 +63,14 @@ torch::Tensor voxel_positions(const torch::Tensor& voxels, double voxel_size);
 torch::Tensor normalize_positions(const torch::Tensor& positions, const torch::Tensor& bounds);
 
 /// Entropy parameters of every anchor of `m`, computed chunk by chunk in canonical order exactly
-/// as the decoder will (the encoder uses them to code, the trainer to evaluate the quantised model).
+/// as the decoder will (the encoder uses them to code, the trainer to evaluate the quantised
+/// model).
 EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, int64_t coded_dim);
 
 /// Training-time rate estimate (Σ −log2 p, the quantity the rate term minimises) of each symbol
 /// stream ("FEAT", "SCAL", "OFFS") under the given parameters.
 std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const EntropyParams& p,
-                                                   EntropyModel& entropy);
+                                                    EntropyModel& entropy);
 
 /// Per-section sizes, in file order.
 struct SectionSize {
@@ -103,8 +104,8 @@ StatusOr<DecodeResult> decode_model(const std::vector<uint8_t>& bytes,
                                     const ComponentRegistry& registry);
 
 /// The coded form of a trained model with the rate path attached: its active anchors in canonical
-/// Morton order, quantised by AnchorModel::quantize (so the steps are the decoder's). `q` (optional)
-/// receives the quantised attributes, for evaluating the training-side quantised model.
+/// Morton order, quantised by AnchorModel::quantize (so the steps are the decoder's). `q`
+/// (optional) receives the quantised attributes, for evaluating the training-side quantised model.
 StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q = nullptr);
 /// The components a trained model is coded with.
 CodecComponents codec_components_of(const AnchorModel& model);

@@ -16,13 +16,21 @@ namespace crpgs {
 template <typename T>
 struct KindOf;
 template <>
-struct KindOf<EntropyModel> { static constexpr crpgs_kind value = CRPGS_KIND_ENTROPY; };
+struct KindOf<EntropyModel> {
+  static constexpr crpgs_kind value = CRPGS_KIND_ENTROPY;
+};
 template <>
-struct KindOf<ContextModel> { static constexpr crpgs_kind value = CRPGS_KIND_CONTEXT; };
+struct KindOf<ContextModel> {
+  static constexpr crpgs_kind value = CRPGS_KIND_CONTEXT;
+};
 template <>
-struct KindOf<FeatureModel> { static constexpr crpgs_kind value = CRPGS_KIND_FEATURES; };
+struct KindOf<FeatureModel> {
+  static constexpr crpgs_kind value = CRPGS_KIND_FEATURES;
+};
 template <>
-struct KindOf<Rasterizer> { static constexpr crpgs_kind value = CRPGS_KIND_RASTERIZER; };
+struct KindOf<Rasterizer> {
+  static constexpr crpgs_kind value = CRPGS_KIND_RASTERIZER;
+};
 
 /// Creates the component of family T from a resolved config block ({type: ..., ...}).
 template <typename T>

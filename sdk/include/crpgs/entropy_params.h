@@ -26,8 +26,8 @@ struct EntropyParams {
 
 /// Splits a context output row ([N, layout.width()]) into EntropyParams. σ outputs are returned
 /// raw (the entropy model clamps them).
-EntropyParams split_entropy_params(const torch::Tensor& context_out, const EntropyParamLayout& layout,
-                                   const QuantSteps& q0);
+EntropyParams split_entropy_params(const torch::Tensor& context_out,
+                                   const EntropyParamLayout& layout, const QuantSteps& q0);
 
 /// Evaluates `context` on positions01 in fixed chunks of `chunk` rows, in order, and splits.
 /// The codec calls it with the same chunking on both sides, so GEMM shapes (and therefore

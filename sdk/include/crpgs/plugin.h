@@ -41,8 +41,10 @@
 #endif
 
 /// The build info of the translation unit that expands it.
-#define CRPGS_THIS_BUILD_INFO \
-  crpgs_build_info { CRPGS_COMPILER_STRING, TORCH_VERSION, CRPGS_CXX_ABI_STRING, CRPGS_BUILT_WITH_CUDA }
+#define CRPGS_THIS_BUILD_INFO                                                         \
+  crpgs_build_info {                                                                  \
+    CRPGS_COMPILER_STRING, TORCH_VERSION, CRPGS_CXX_ABI_STRING, CRPGS_BUILT_WITH_CUDA \
+  }
 
 namespace crpgs::detail {
 
@@ -78,16 +80,22 @@ void destroy_component(void* obj) noexcept {
 }  // namespace crpgs::detail
 
 /// Defines a static descriptor and a function `fn` returning it (for built-ins).
-#define CRPGS_DESCRIPTOR_FUNCTION(fn, KIND, Interface, Impl, ID, TYPE, VMAJ, VMIN, SCHEMA)      \
-  const crpgs_plugin_descriptor* fn() {                                                         \
-    static const crpgs_plugin_descriptor d = {                                                  \
-        CRPGS_PLUGIN_ABI_VERSION, static_cast<uint32_t>(KIND), ID, TYPE, VMAJ, VMIN,            \
-        CRPGS_THIS_BUILD_INFO, SCHEMA, &::crpgs::detail::create_component<Interface, Impl>,     \
-        &::crpgs::detail::destroy_component<Interface>};                                        \
-    return &d;                                                                                  \
+#define CRPGS_DESCRIPTOR_FUNCTION(fn, KIND, Interface, Impl, ID, TYPE, VMAJ, VMIN, SCHEMA)         \
+  const crpgs_plugin_descriptor* fn() {                                                            \
+    static const crpgs_plugin_descriptor d = {CRPGS_PLUGIN_ABI_VERSION,                            \
+                                              static_cast<uint32_t>(KIND),                         \
+                                              ID,                                                  \
+                                              TYPE,                                                \
+                                              VMAJ,                                                \
+                                              VMIN,                                                \
+                                              CRPGS_THIS_BUILD_INFO,                               \
+                                              SCHEMA,                                              \
+                                              &::crpgs::detail::create_component<Interface, Impl>, \
+                                              &::crpgs::detail::destroy_component<Interface>};     \
+    return &d;                                                                                     \
   }
 
 /// Defines the exported entry point of a plugin library.
-#define CRPGS_PLUGIN(KIND, Interface, Impl, ID, TYPE, VMAJ, VMIN, SCHEMA)                        \
-  extern "C" __attribute__((visibility("default")))                                            \
+#define CRPGS_PLUGIN(KIND, Interface, Impl, ID, TYPE, VMAJ, VMIN, SCHEMA) \
+  extern "C" __attribute__((visibility("default")))                       \
   CRPGS_DESCRIPTOR_FUNCTION(crpgs_plugin_v1, KIND, Interface, Impl, ID, TYPE, VMAJ, VMIN, SCHEMA)

@@ -48,10 +48,10 @@ typedef struct crpgs_create_args {
 #define CRPGS_PLUGIN_ERROR 1
 
 typedef struct crpgs_plugin_descriptor {
-  uint32_t abi_version; /* CRPGS_PLUGIN_ABI_VERSION the plugin was built against */
-  uint32_t kind;        /* crpgs_kind */
-  const char* id;       /* reverse-DNS identifier, e.g. "org.crpgs.context.hash_grid" */
-  const char* type_name;/* the YAML `type:` value */
+  uint32_t abi_version;  /* CRPGS_PLUGIN_ABI_VERSION the plugin was built against */
+  uint32_t kind;         /* crpgs_kind */
+  const char* id;        /* reverse-DNS identifier, e.g. "org.crpgs.context.hash_grid" */
+  const char* type_name; /* the YAML `type:` value */
   uint32_t version_major, version_minor;
   crpgs_build_info build;
   const char* schema_yaml; /* YAML list of {key, type, default, min, max, choices, doc} */

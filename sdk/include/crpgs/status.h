@@ -41,7 +41,9 @@ class [[nodiscard]] Status {
   std::string message_;
 };
 
-inline Status OkStatus() { return Status(); }
+inline Status OkStatus() {
+  return Status();
+}
 
 /// A value or the Status explaining why there is none. Implicit from both, so a function can
 /// `return value;` or `return Status(...)`.
@@ -77,10 +79,10 @@ struct StatusError : std::exception {
 #define CRPGS_CONCAT_INNER(a, b) a##b
 #define CRPGS_CONCAT(a, b) CRPGS_CONCAT_INNER(a, b)
 
-#define CRPGS_RETURN_IF_ERROR(expr)            \
-  do {                                         \
-    ::crpgs::Status _crpgs_st = (expr);        \
-    if (!_crpgs_st.ok()) return _crpgs_st;     \
+#define CRPGS_RETURN_IF_ERROR(expr)        \
+  do {                                     \
+    ::crpgs::Status _crpgs_st = (expr);    \
+    if (!_crpgs_st.ok()) return _crpgs_st; \
   } while (0)
 
 #define CRPGS_ASSIGN_OR_RETURN_IMPL(tmp, lhs, expr) \

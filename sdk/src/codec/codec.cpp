@@ -52,7 +52,9 @@ Status corrupt(const std::string& msg) {
   return Status(StatusCode::kCorruptBitstream, "bitstream: " + msg);
 }
 
-Bytes to_bytes(const std::vector<uint8_t>& v) { return Bytes(v.begin(), v.end()); }
+Bytes to_bytes(const std::vector<uint8_t>& v) {
+  return Bytes(v.begin(), v.end());
+}
 
 void put_tensor(ByteWriter& w, const std::string& name, const torch::Tensor& t) {
   const auto c = t.detach().to(torch::kFloat).contiguous().cpu();
@@ -130,19 +132,19 @@ EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, i
 }
 
 std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const EntropyParams& p,
-                                                   EntropyModel& entropy) {
+                                                    EntropyModel& entropy) {
   torch::NoGradGuard no_grad;
   const auto masks = m.offset_masks.to(torch::kBool);
-  const auto a = stream_args(p, m.feature_sym, m.scaling_sym, m.offset_sym, masks,
-                             m.offset_masks.size(1));
+  const auto a =
+      stream_args(p, m.feature_sym, m.scaling_sym, m.offset_sym, masks, m.offset_masks.size(1));
   std::map<std::string, double> out;
   for (int k = 0; k < 3; ++k) {
     const auto& s = a[size_t(k)];
-    out[kStreamIds[k]] =
-        s.symbols.numel() ? entropy.bits(s.symbols.to(torch::kFloat) * s.q, s.mean, s.scale, s.q)
-                                .sum()
-                                .item<double>()
-                          : 0.0;
+    out[kStreamIds[k]] = s.symbols.numel()
+                             ? entropy.bits(s.symbols.to(torch::kFloat) * s.q, s.mean, s.scale, s.q)
+                                   .sum()
+                                   .item<double>()
+                             : 0.0;
   }
   return out;
 }
@@ -161,8 +163,11 @@ const char* section_category(const std::string& id) {
 
 StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
                                     const CodecComponents& c) {
-  auto bad = [](const std::string& msg) { return Status(StatusCode::kInvalidArgument, "encode: " + msg); };
-  if (!c.context || !c.entropy || !c.features) return bad("context, entropy and features are required");
+  auto bad = [](const std::string& msg) {
+    return Status(StatusCode::kInvalidArgument, "encode: " + msg);
+  };
+  if (!c.context || !c.entropy || !c.features)
+    return bad("context, entropy and features are required");
   if (!c.entropy->supports_coding())
     return bad("entropy model '" + c.entropy->type_name() + "' cannot code bitstreams");
   const int64_t N = m.voxels.size(0), K = m.offset_masks.size(1), Dc = m.feature_sym.size(1);
@@ -183,7 +188,8 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
 
   coding::ContainerWriter w(config.hash());
   const std::string conf = config.dump();
-  CRPGS_RETURN_IF_ERROR(w.add_section("CONF", kComponent, kMajor, kMinor, Bytes(conf.begin(), conf.end())));
+  CRPGS_RETURN_IF_ERROR(
+      w.add_section("CONF", kComponent, kMajor, kMinor, Bytes(conf.begin(), conf.end())));
   ByteWriter head;
   head.put_varint(uint64_t(N));
   head.put_varint(uint64_t(K));
@@ -196,7 +202,8 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   head.put_f64(m.q0.scaling);
   head.put_f64(m.q0.offset);
   CRPGS_RETURN_IF_ERROR(w.add_section("HEAD", kComponent, kMajor, kMinor, head.take()));
-  CRPGS_RETURN_IF_ERROR(w.add_section("GEOM", "org.crpgs.geometry.draco", 1, 0, std::move(geometry)));
+  CRPGS_RETURN_IF_ERROR(
+      w.add_section("GEOM", "org.crpgs.geometry.draco", 1, 0, std::move(geometry)));
 
   const auto masks = m.offset_masks.to(torch::kBool).contiguous();
   std::vector<uint8_t> bits(size_t(N * K));
@@ -222,16 +229,16 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   torch::NoGradGuard no_grad;
   for (int64_t s = 0; s < N; s += m.chunk) {
     const int64_t e = std::min(N, s + m.chunk);
-    EntropyParams pc{p.mu_f.slice(0, s, e), p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
-                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e), p.sigma_o.slice(0, s, e),
-                     p.q_f.slice(0, s, e),   p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
+    EntropyParams pc{p.mu_f.slice(0, s, e),    p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
+                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e),    p.sigma_o.slice(0, s, e),
+                     p.q_f.slice(0, s, e),     p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
     const auto args = stream_args(pc, m.feature_sym.slice(0, s, e), m.scaling_sym.slice(0, s, e),
                                   m.offset_sym.slice(0, s, e), masks.slice(0, s, e), K);
     for (int k = 0; k < 3; ++k) {
       const auto& a = args[size_t(k)];
       const auto sym = a.symbols.to(torch::kInt).contiguous();
-      const auto bytes = c.entropy->compress(sym, a.mean.contiguous(), a.scale.contiguous(),
-                                             a.q.contiguous());
+      const auto bytes =
+          c.entropy->compress(sym, a.mean.contiguous(), a.scale.contiguous(), a.q.contiguous());
       streams[size_t(k)].put_varint(bytes.size());
       streams[size_t(k)].put_bytes(bytes);
     }
@@ -239,15 +246,17 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   const auto estimated = estimated_stream_bits(m, p, *c.entropy);
   for (int k = 0; k < 3; ++k) {
     Bytes payload = streams[size_t(k)].take();
-    result.estimated_vs_coded_bits[kStreamIds[k]] = {estimated.at(kStreamIds[k]), 8.0 * payload.size()};
-    CRPGS_RETURN_IF_ERROR(w.add_section(kStreamIds[k], "org.crpgs.entropy." + c.entropy->type_name(),
-                                        1, 0, std::move(payload)));
+    result.estimated_vs_coded_bits[kStreamIds[k]] = {estimated.at(kStreamIds[k]),
+                                                     8.0 * payload.size()};
+    CRPGS_RETURN_IF_ERROR(w.add_section(
+        kStreamIds[k], "org.crpgs.entropy." + c.entropy->type_name(), 1, 0, std::move(payload)));
   }
   result.bytes = w.finish();
   // Sizes as the reader sees them (headers included), from the bytes just written.
   auto parsed = coding::ContainerReader::parse(ByteSpan(result.bytes));
   if (!parsed.ok()) return parsed.status();
-  for (const auto& s : parsed->sections) result.sections.push_back({s.id, s.component_id, s.file_size});
+  for (const auto& s : parsed->sections)
+    result.sections.push_back({s.id, s.component_id, s.file_size});
   return result;
 }
 
@@ -270,21 +279,21 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
 
   // 1. Config -> components (a plugin the file needs but this machine lacks is named here).
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* conf, section("CONF"));
-  CRPGS_ASSIGN_OR_RETURN(Config raw, Config::from_string(std::string(conf->payload.begin(),
-                                                                     conf->payload.end()),
-                                                         "<bitstream config>"));
+  CRPGS_ASSIGN_OR_RETURN(
+      Config raw, Config::from_string(std::string(conf->payload.begin(), conf->payload.end()),
+                                      "<bitstream config>"));
   CRPGS_ASSIGN_OR_RETURN(out.config, raw.resolve(registry));
   crpgs_create_args args = create_args_for(out.config);
   auto& c = out.components;
-  CRPGS_ASSIGN_OR_RETURN(c.features, create_component<FeatureModel>(
-                                         registry, out.config.section("features"), args));
+  CRPGS_ASSIGN_OR_RETURN(
+      c.features, create_component<FeatureModel>(registry, out.config.section("features"), args));
   args.coded_dim = int32_t(c.features->coded_dim());
   if (!out.config.section("context") || !out.config.section("entropy"))
     return corrupt("its config has no context/entropy component");
-  CRPGS_ASSIGN_OR_RETURN(c.context, create_component<ContextModel>(
-                                        registry, out.config.section("context"), args));
-  CRPGS_ASSIGN_OR_RETURN(c.entropy, create_component<EntropyModel>(
-                                        registry, out.config.section("entropy"), args));
+  CRPGS_ASSIGN_OR_RETURN(
+      c.context, create_component<ContextModel>(registry, out.config.section("context"), args));
+  CRPGS_ASSIGN_OR_RETURN(
+      c.entropy, create_component<EntropyModel>(registry, out.config.section("entropy"), args));
 
   // 2. Header, with every count checked before use.
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* hs, section("HEAD"));
@@ -326,8 +335,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* ms, section("OMSK"));
   CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bits,
                          coding::decode_bernoulli(ByteSpan(ms->payload), size_t(N * K)));
-  m.offset_masks = torch::from_blob(bits.data(), {int64_t(N), int64_t(K)}, torch::kUInt8)
-                       .to(torch::kBool);
+  m.offset_masks =
+      torch::from_blob(bits.data(), {int64_t(N), int64_t(K)}, torch::kUInt8).to(torch::kBool);
 
   // 4. Component states and MLPs.
   std::string err;
@@ -366,11 +375,12 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   torch::NoGradGuard no_grad;
   for (int64_t s = 0; s < n; s += m.chunk) {
     const int64_t e = std::min(n, s + m.chunk);
-    EntropyParams pc{p.mu_f.slice(0, s, e), p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
-                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e), p.sigma_o.slice(0, s, e),
-                     p.q_f.slice(0, s, e),   p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
+    EntropyParams pc{p.mu_f.slice(0, s, e),    p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
+                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e),    p.sigma_o.slice(0, s, e),
+                     p.q_f.slice(0, s, e),     p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
     const auto masks = m.offset_masks.slice(0, s, e);
-    const auto a = stream_args(pc, torch::Tensor(), torch::Tensor(), torch::Tensor(), masks, int64_t(K));
+    const auto a =
+        stream_args(pc, torch::Tensor(), torch::Tensor(), torch::Tensor(), masks, int64_t(K));
     std::array<torch::Tensor, 3> decoded;
     for (int k = 0; k < 3; ++k) {
       ByteReader& r = readers[size_t(k)];
@@ -382,7 +392,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
       decoded[size_t(k)] = c.entropy->decompress(chunk_bytes, sa.mean.contiguous(),
                                                  sa.scale.contiguous(), sa.q.contiguous(), &err);
       if (!decoded[size_t(k)].defined())
-        return corrupt(std::string(kStreamIds[k]) + " chunk at anchor " + std::to_string(s) + ": " + err);
+        return corrupt(std::string(kStreamIds[k]) + " chunk at anchor " + std::to_string(s) + ": " +
+                       err);
     }
     m.feature_sym.slice(0, s, e).copy_(decoded[0].view({e - s, int64_t(Dc)}));
     m.scaling_sym.slice(0, s, e).copy_(decoded[1].view({e - s, 6}));
@@ -415,17 +426,18 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   torch::NoGradGuard no_grad;
   const auto idx = model.active_anchors().nonzero().view(-1);
   const float v = static_cast<float>(model.voxel_size());
-  const auto vox = torch::round(model.anchors().detach().index({idx}) / v).to(torch::kInt).contiguous();
+  const auto vox =
+      torch::round(model.anchors().detach().index({idx}) / v).to(torch::kInt).contiguous();
   std::vector<coding::Voxel> points(static_cast<size_t>(vox.size(0)));
   const int32_t* vp = vox.data_ptr<int32_t>();
-  for (size_t i = 0; i < points.size(); ++i)
-    points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
+  for (size_t i = 0; i < points.size(); ++i) points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
   const auto order = coding::morton_order(points);
   for (size_t i = 1; i < order.size(); ++i)
     if (points[order[i]] == points[order[i - 1]])
       return Status(StatusCode::kInternal, "encode: two active anchors share a voxel");
-  const auto perm = torch::from_blob(const_cast<uint32_t*>(order.data()), {int64_t(order.size())},
-                                     torch::kInt).to(torch::kLong);
+  const auto perm =
+      torch::from_blob(const_cast<uint32_t*>(order.data()), {int64_t(order.size())}, torch::kInt)
+          .to(torch::kLong);
   QuantizedAttributes q = model.quantize(idx.index({perm}));
   CodedModel m;
   m.voxel_size = model.voxel_size();

@@ -30,9 +30,10 @@ EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor&
   TORCH_CHECK(chunk > 0, "chunk must be positive");
   std::vector<torch::Tensor> outs;
   for (int64_t s = 0; s < positions01.size(0); s += chunk)
-    outs.push_back(context.forward(positions01.slice(0, s, std::min(s + chunk, positions01.size(0)))));
-  torch::Tensor out = outs.empty() ? torch::zeros({0, layout.width()}, positions01.options())
-                                   : torch::cat(outs, 0);
+    outs.push_back(
+        context.forward(positions01.slice(0, s, std::min(s + chunk, positions01.size(0)))));
+  torch::Tensor out =
+      outs.empty() ? torch::zeros({0, layout.width()}, positions01.options()) : torch::cat(outs, 0);
   return split_entropy_params(out, layout, q0);
 }
 

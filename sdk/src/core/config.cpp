@@ -52,10 +52,8 @@ YAML::Node without_marks(const YAML::Node& n) {
 
 const std::vector<ComponentSection>& component_sections() {
   static const std::vector<ComponentSection> sections = {
-      {"entropy", CRPGS_KIND_ENTROPY, nullptr},
-      {"context", CRPGS_KIND_CONTEXT, nullptr},
-      {"links", CRPGS_KIND_CONTEXT, nullptr},
-      {"features", CRPGS_KIND_FEATURES, "identity"},
+      {"entropy", CRPGS_KIND_ENTROPY, nullptr},     {"context", CRPGS_KIND_CONTEXT, nullptr},
+      {"links", CRPGS_KIND_CONTEXT, nullptr},       {"features", CRPGS_KIND_FEATURES, "identity"},
       {"rasterizer", CRPGS_KIND_RASTERIZER, "cpu"},
   };
   return sections;
@@ -80,20 +78,23 @@ StatusOr<Config> Config::load_file(const std::string& path) {
 Status Config::apply_override(const std::string& assignment) {
   const auto eq = assignment.find('=');
   if (eq == std::string::npos || eq == 0)
-    return Status(StatusCode::kInvalidArgument,
-                  "--set '" + assignment + "': expected key.path=value, e.g. train.iterations=1000");
+    return Status(
+        StatusCode::kInvalidArgument,
+        "--set '" + assignment + "': expected key.path=value, e.g. train.iterations=1000");
   const std::string path = assignment.substr(0, eq), text = assignment.substr(eq + 1);
   std::vector<std::string> keys;
   std::stringstream ps(path);
   for (std::string k; std::getline(ps, k, '.');) {
-    if (k.empty()) return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
+    if (k.empty())
+      return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
     keys.push_back(k);
   }
   YAML::Node value;
   try {
     value = without_marks(YAML::Load(text));
   } catch (const YAML::Exception& e) {
-    return Status(StatusCode::kInvalidArgument, "--set " + path + ": value does not parse: " + e.msg);
+    return Status(StatusCode::kInvalidArgument,
+                  "--set " + path + ": value does not parse: " + e.msg);
   }
   // Walk/create maps; yaml-cpp nodes are handles, so assignment through `cur` edits root_.
   std::vector<YAML::Node> chain{root_};
@@ -141,11 +142,13 @@ StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
       if (!s.default_type) continue;
       type = s.default_type;
     } else {
-      if (!block.IsMap()) return err(block, std::string(s.key) + ": expected a map with a `type:` key");
+      if (!block.IsMap())
+        return err(block, std::string(s.key) + ": expected a map with a `type:` key");
       const YAML::Node t = block["type"];
       if (!t.IsDefined()) {
-        if (!s.default_type) return err(block, std::string(s.key) + ".type: missing; available: " +
-                                                   join(registry.types(s.kind)));
+        if (!s.default_type)
+          return err(block, std::string(s.key) +
+                                ".type: missing; available: " + join(registry.types(s.kind)));
         type = s.default_type;
       } else if (!t.IsScalar()) {
         return err(t, std::string(s.key) + ".type: expected a string");
@@ -158,7 +161,8 @@ StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
       return err(block["type"], std::string(s.key) +
                                     ".type: rasterizer 'cuda' is not compiled into this build "
                                     "(configure with CRPGS_WITH_CUDA=ON and a CUDA libtorch); "
-                                    "available: " + join(registry.types(s.kind)));
+                                    "available: " +
+                                    join(registry.types(s.kind)));
     }
     if (!info) {
       std::string where = join(registry.searched_dirs());
@@ -183,7 +187,9 @@ std::string Config::dump() const {
   return std::string(e.c_str()) + "\n";
 }
 
-Status Config::save(const std::string& path) const { return write_file_atomic(path, dump()); }
+Status Config::save(const std::string& path) const {
+  return write_file_atomic(path, dump());
+}
 
 uint64_t Config::hash() const {
   uint64_t h = 1469598103934665603ull;

@@ -17,15 +17,21 @@ namespace fs = std::filesystem;
 
 const char* kind_name(crpgs_kind kind) {
   switch (kind) {
-    case CRPGS_KIND_ENTROPY: return "entropy";
-    case CRPGS_KIND_CONTEXT: return "context";
-    case CRPGS_KIND_FEATURES: return "features";
-    case CRPGS_KIND_RASTERIZER: return "rasterizer";
+    case CRPGS_KIND_ENTROPY:
+      return "entropy";
+    case CRPGS_KIND_CONTEXT:
+      return "context";
+    case CRPGS_KIND_FEATURES:
+      return "features";
+    case CRPGS_KIND_RASTERIZER:
+      return "rasterizer";
   }
   return "unknown";
 }
 
-crpgs_build_info host_build_info() { return CRPGS_THIS_BUILD_INFO; }
+crpgs_build_info host_build_info() {
+  return CRPGS_THIS_BUILD_INFO;
+}
 
 PluginLibrary::~PluginLibrary() {
   // RTLD_NODELETE keeps the code mapped anyway: autograd nodes defined in a plugin may outlive
@@ -48,11 +54,15 @@ StatusOr<std::shared_ptr<PluginLibrary>> PluginLibrary::open(const std::string& 
   return lib;
 }
 
-void* PluginLibrary::symbol(const char* name) const { return dlsym(handle_, name); }
+void* PluginLibrary::symbol(const char* name) const {
+  return dlsym(handle_, name);
+}
 
 namespace {
 
-std::string str_or(const char* s) { return s ? s : "(null)"; }
+std::string str_or(const char* s) {
+  return s ? s : "(null)";
+}
 
 // Validates the descriptor fields; `who` prefixes each message.
 Status check_descriptor(const crpgs_plugin_descriptor* d, const std::string& who,
@@ -78,9 +88,10 @@ Status check_descriptor(const crpgs_plugin_descriptor* d, const std::string& who
             (host.cuda ? "on" : "off") + ";";
   if (!diff.empty()) {
     diff.pop_back();
-    return fail(StatusCode::kPluginAbiMismatch, "build info does not match the host:" + diff +
-                                                    " (torch::Tensor crosses the boundary, so "
-                                                    "plugins must be built with the host's toolchain)");
+    return fail(StatusCode::kPluginAbiMismatch,
+                "build info does not match the host:" + diff +
+                    " (torch::Tensor crosses the boundary, so "
+                    "plugins must be built with the host's toolchain)");
   }
   if (d->kind < CRPGS_KIND_ENTROPY || d->kind > CRPGS_KIND_RASTERIZER)
     return fail(StatusCode::kPluginLoadFailed, "unknown component kind " + std::to_string(d->kind));
@@ -135,7 +146,8 @@ Status ComponentRegistry::load_plugin_file(const std::string& path) {
   };
   auto lib = PluginLibrary::open(path);
   if (!lib.ok()) return reject(lib.status());
-  auto entry = reinterpret_cast<crpgs_plugin_entry_fn>(lib.value()->symbol(CRPGS_PLUGIN_ENTRY_SYMBOL));
+  auto entry =
+      reinterpret_cast<crpgs_plugin_entry_fn>(lib.value()->symbol(CRPGS_PLUGIN_ENTRY_SYMBOL));
   if (!entry)
     return reject(Status(StatusCode::kPluginLoadFailed,
                          path + ": not a crpgs plugin (no symbol " CRPGS_PLUGIN_ENTRY_SYMBOL ")"));
@@ -160,7 +172,8 @@ void ComponentRegistry::load_plugins(const std::vector<std::string>& dirs) {
     std::vector<std::string> files;
     auto collect = [&](const fs::path& d) {
       for (const auto& e : fs::directory_iterator(d, ec))
-        if (e.is_regular_file(ec) && e.path().extension() == ".so") files.push_back(e.path().string());
+        if (e.is_regular_file(ec) && e.path().extension() == ".so")
+          files.push_back(e.path().string());
     };
     collect(canon);
     for (const auto& e : fs::directory_iterator(canon, ec))
@@ -190,8 +203,8 @@ std::vector<std::string> ComponentRegistry::types(crpgs_kind kind) const {
 }
 
 StatusOr<std::shared_ptr<void>> ComponentRegistry::create_raw(crpgs_kind kind,
-                                                             const YAML::Node& resolved_block,
-                                                             const crpgs_create_args& args) const {
+                                                              const YAML::Node& resolved_block,
+                                                              const crpgs_create_args& args) const {
   const std::string type = resolved_block["type"] ? resolved_block["type"].as<std::string>() : "";
   const ComponentInfo* info = find(kind, type);
   if (!info) {

@@ -13,9 +13,12 @@ struct TypeName {
   const char* name;
 };
 constexpr TypeName kTypeNames[] = {
-    {ParamType::kInt, "int"},           {ParamType::kFloat, "float"},
-    {ParamType::kBool, "bool"},         {ParamType::kString, "string"},
-    {ParamType::kChoice, "choice"},     {ParamType::kIntList, "int_list"},
+    {ParamType::kInt, "int"},
+    {ParamType::kFloat, "float"},
+    {ParamType::kBool, "bool"},
+    {ParamType::kString, "string"},
+    {ParamType::kChoice, "choice"},
+    {ParamType::kIntList, "int_list"},
     {ParamType::kFloatList, "float_list"},
 };
 
@@ -86,8 +89,10 @@ bool check_value(const ParamSpec& p, const YAML::Node& v, YAML::Node* out, std::
     return true;
   };
   switch (p.type) {
-    case ParamType::kInt: return scalar_number(v, true, out);
-    case ParamType::kFloat: return scalar_number(v, false, out);
+    case ParamType::kInt:
+      return scalar_number(v, true, out);
+    case ParamType::kFloat:
+      return scalar_number(v, false, out);
     case ParamType::kBool: {
       bool b;
       if (!parse_bool(v, &b)) return *why = "not a boolean", false;
@@ -124,7 +129,9 @@ bool check_value(const ParamSpec& p, const YAML::Node& v, YAML::Node* out, std::
   return false;
 }
 
-std::string mark_of(const YAML::Node& node, const SourceRef& src) { return src.describe(node); }
+std::string mark_of(const YAML::Node& node, const SourceRef& src) {
+  return src.describe(node);
+}
 
 }  // namespace
 
@@ -157,7 +164,9 @@ const ParamSpec* Schema::find(const std::string& key) const {
 }
 
 StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
-  auto bad = [](const std::string& msg) { return Status(StatusCode::kInvalidConfig, "schema: " + msg); };
+  auto bad = [](const std::string& msg) {
+    return Status(StatusCode::kInvalidConfig, "schema: " + msg);
+  };
   YAML::Node root;
   try {
     root = YAML::Load(yaml_text);
@@ -187,7 +196,8 @@ StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
     }
     if (e["min_exclusive"]) p.min_exclusive = e["min_exclusive"].as<bool>(false);
     if (e["choices"]) {
-      if (!e["choices"].IsSequence()) return bad("parameter '" + p.key + "': choices must be a list");
+      if (!e["choices"].IsSequence())
+        return bad("parameter '" + p.key + "': choices must be a list");
       for (const auto& c : e["choices"]) p.choices.push_back(c.as<std::string>());
     }
     if (p.type == ParamType::kChoice && p.choices.empty())
@@ -227,7 +237,8 @@ std::string Schema::to_yaml() const {
 std::string SourceRef::describe(const YAML::Node& node) const {
   std::string s = file.empty() ? "<config>" : file;
   if (!node.IsDefined() || node.Mark().line < 0) return s + " (--set)";
-  return s + ":" + std::to_string(node.Mark().line + 1) + ":" + std::to_string(node.Mark().column + 1);
+  return s + ":" + std::to_string(node.Mark().line + 1) + ":" +
+         std::to_string(node.Mark().column + 1);
 }
 
 StatusOr<YAML::Node> validate_block(const YAML::Node& block, const Schema& schema,
@@ -242,7 +253,8 @@ StatusOr<YAML::Node> validate_block(const YAML::Node& block, const Schema& schem
   if (present) {
     for (const auto& kv : block) {
       const std::string key = kv.first.as<std::string>();
-      if (std::find(allowed_extra.begin(), allowed_extra.end(), key) != allowed_extra.end()) continue;
+      if (std::find(allowed_extra.begin(), allowed_extra.end(), key) != allowed_extra.end())
+        continue;
       const ParamSpec* p = schema.find(key);
       if (!p) {
         std::vector<std::string> keys;
@@ -254,8 +266,8 @@ StatusOr<YAML::Node> validate_block(const YAML::Node& block, const Schema& schem
       std::string why;
       if (!check_value(*p, kv.second, &value, &why)) {
         std::string shown = kv.second.IsScalar() ? "'" + kv.second.Scalar() + "'" : "this value";
-        return err(kv.second, path + "." + key + ": " + shown + " is " + why + "; expected " +
-                                  p->expected());
+        return err(kv.second,
+                   path + "." + key + ": " + shown + " is " + why + "; expected " + p->expected());
       }
       resolved[key] = value;
     }

@@ -5,18 +5,30 @@ namespace crpgs {
 
 const char* status_code_name(StatusCode code) {
   switch (code) {
-    case StatusCode::kOk: return "ok";
-    case StatusCode::kInvalidArgument: return "invalid argument";
-    case StatusCode::kInvalidConfig: return "invalid config";
-    case StatusCode::kPluginLoadFailed: return "plugin load failed";
-    case StatusCode::kPluginAbiMismatch: return "plugin ABI mismatch";
-    case StatusCode::kUnsupportedVersion: return "unsupported version";
-    case StatusCode::kIoError: return "I/O error";
-    case StatusCode::kCorruptBitstream: return "corrupt bitstream";
-    case StatusCode::kDeviceUnavailable: return "device unavailable";
-    case StatusCode::kNotFound: return "not found";
-    case StatusCode::kInternal: return "internal error";
-    case StatusCode::kCancelled: return "cancelled";
+    case StatusCode::kOk:
+      return "ok";
+    case StatusCode::kInvalidArgument:
+      return "invalid argument";
+    case StatusCode::kInvalidConfig:
+      return "invalid config";
+    case StatusCode::kPluginLoadFailed:
+      return "plugin load failed";
+    case StatusCode::kPluginAbiMismatch:
+      return "plugin ABI mismatch";
+    case StatusCode::kUnsupportedVersion:
+      return "unsupported version";
+    case StatusCode::kIoError:
+      return "I/O error";
+    case StatusCode::kCorruptBitstream:
+      return "corrupt bitstream";
+    case StatusCode::kDeviceUnavailable:
+      return "device unavailable";
+    case StatusCode::kNotFound:
+      return "not found";
+    case StatusCode::kInternal:
+      return "internal error";
+    case StatusCode::kCancelled:
+      return "cancelled";
   }
   return "unknown";
 }

@@ -1019,6 +1019,8 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
   return OkStatus();
 }
 
-std::shared_ptr<FeatureModel> AnchorModel::feature_model() const { return impl_->features_model; }
+std::shared_ptr<FeatureModel> AnchorModel::feature_model() const {
+  return impl_->features_model;
+}
 
 }  // namespace crpgs
