@@ -304,32 +304,34 @@ std::string find_colmap_model_dir(const std::string& dir) {
   return "";
 }
 
-StatusOr<ColmapModel> read_colmap_binary(const std::string& dir) {
+namespace {
+using ColmapReader = Status (*)(const std::string& path, ColmapModel& m);
+
+/// cameras + images are required; points3D is optional (no points: random initialisation).
+StatusOr<ColmapModel> read_colmap_files(const std::string& dir, const char* ext,
+                                        ColmapReader cameras, ColmapReader images,
+                                        ColmapReader points) {
   ColmapModel m;
   const fs::path d(dir);
-  CRPGS_RETURN_IF_ERROR(read_cameras_bin((d / "cameras.bin").string(), m));
-  CRPGS_RETURN_IF_ERROR(read_images_bin((d / "images.bin").string(), m));
+  CRPGS_RETURN_IF_ERROR(cameras((d / (std::string("cameras") + ext)).string(), m));
+  CRPGS_RETURN_IF_ERROR(images((d / (std::string("images") + ext)).string(), m));
+  const fs::path pts = d / (std::string("points3D") + ext);
   std::error_code ec;
-  if (fs::exists(d / "points3D.bin", ec)) {
+  if (fs::exists(pts, ec)) {
     m.has_points_file = true;
-    CRPGS_RETURN_IF_ERROR(read_points_bin((d / "points3D.bin").string(), m));
+    CRPGS_RETURN_IF_ERROR(points(pts.string(), m));
   }
   CRPGS_RETURN_IF_ERROR(check_model(dir, m));
   return m;
 }
+}  // namespace
+
+StatusOr<ColmapModel> read_colmap_binary(const std::string& dir) {
+  return read_colmap_files(dir, ".bin", read_cameras_bin, read_images_bin, read_points_bin);
+}
 
 StatusOr<ColmapModel> read_colmap_text(const std::string& dir) {
-  ColmapModel m;
-  const fs::path d(dir);
-  CRPGS_RETURN_IF_ERROR(read_cameras_txt((d / "cameras.txt").string(), m));
-  CRPGS_RETURN_IF_ERROR(read_images_txt((d / "images.txt").string(), m));
-  std::error_code ec;
-  if (fs::exists(d / "points3D.txt", ec)) {
-    m.has_points_file = true;
-    CRPGS_RETURN_IF_ERROR(read_points_txt((d / "points3D.txt").string(), m));
-  }
-  CRPGS_RETURN_IF_ERROR(check_model(dir, m));
-  return m;
+  return read_colmap_files(dir, ".txt", read_cameras_txt, read_images_txt, read_points_txt);
 }
 
 StatusOr<ColmapModel> read_colmap_model(const std::string& dir) {
