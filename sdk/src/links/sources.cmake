@@ -1,0 +1,1 @@
+# Link strategies' shared algorithms (candidate retrieval, greedy matching).

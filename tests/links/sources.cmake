@@ -1,0 +1,1 @@
+# Tests of the link algorithms and link plugins.
