@@ -8,6 +8,8 @@
 #include <random>
 #include <set>
 
+#include "crpgs/coding/bit_packing.h"
+#include "crpgs/coding/bitstream.h"
 #include "crpgs/coding/geometry.h"
 
 namespace crpgs::coding {
@@ -182,6 +184,63 @@ TEST(Raw16, RefusesBadInput) {
   absurd.put_varint(uint64_t(1) << 62);
   for (int i = 0; i < 6; ++i) absurd.put_f32(0.f);
   EXPECT_EQ(decode_positions_raw16(absurd.bytes()).status().code(), StatusCode::kCorruptBitstream);
+}
+
+}  // namespace
+}  // namespace crpgs::coding
+
+namespace crpgs::coding {
+namespace {
+
+TEST(RawVoxels, LosslessWithTheNarrowestWidth) {
+  for (auto range :
+       {std::pair<int32_t, int32_t>{-300, 300}, {0, 65535}, {-(1 << 30), (1 << 30) - 1}}) {
+    const auto pts = in_morton_order(random_unique(3000, range.first, range.second, 5));
+    auto enc = encode_voxels_raw(pts);
+    ASSERT_TRUE(enc.ok()) << enc.status().message();
+    auto dec = decode_voxels_raw(enc.value());
+    ASSERT_TRUE(dec.ok()) << dec.status().message();
+    EXPECT_EQ(dec.value(), pts);
+    // Header (u8 format, varint n, 3 x i32, u8 width) + one fixed width per coordinate.
+    const int64_t extent = int64_t(range.second) - int64_t(range.first);
+    int width = 1;
+    while ((extent >> width) != 0) ++width;
+    EXPECT_LE(enc->size(), 16 + (pts.size() * 3 * size_t(width) + 7) / 8) << width;
+  }
+  auto empty = encode_voxels_raw({});
+  ASSERT_TRUE(empty.ok());
+  auto dec = decode_voxels_raw(empty.value());
+  ASSERT_TRUE(dec.ok()) << dec.status().message();
+  EXPECT_TRUE(dec->empty());
+}
+
+TEST(RawVoxels, RefusesUnorderedInputAndCorruptStreams) {
+  auto pts = in_morton_order(random_unique(200, -50, 50, 9));
+  std::swap(pts[3], pts[4]);
+  EXPECT_FALSE(encode_voxels_raw(pts).ok());
+  std::swap(pts[3], pts[4]);
+  auto enc = encode_voxels_raw(pts);
+  ASSERT_TRUE(enc.ok());
+  Bytes bytes = enc.value();
+  for (size_t cut : {size_t(0), size_t(1), size_t(5), bytes.size() - 1}) {
+    const Bytes part(bytes.begin(), bytes.begin() + std::ptrdiff_t(cut));
+    EXPECT_FALSE(decode_voxels_raw(part).ok()) << "truncated at " << cut;
+  }
+  Bytes bad_width = bytes;
+  bad_width[1 + 2 + 12] = 40;  // format, varint 200 (2 bytes), 3 x i32, then the width
+  EXPECT_FALSE(decode_voxels_raw(bad_width).ok());
+  // A well-formed stream whose points are out of order: (1,0,0) then (0,0,0).
+  ByteWriter w;
+  w.put_u8(1);
+  w.put_varint(2);
+  for (int a = 0; a < 3; ++a) w.put_i32(0);
+  w.put_u8(2);
+  auto packed = pack_bits({1, 0, 0, 0, 0, 0}, 2);
+  ASSERT_TRUE(packed.ok());
+  w.put_bytes(packed.value());
+  auto d = decode_voxels_raw(w.take());
+  ASSERT_FALSE(d.ok());
+  EXPECT_NE(d.status().message().find("Morton"), std::string::npos) << d.status().message();
 }
 
 }  // namespace

@@ -216,7 +216,7 @@ TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
   auto bad = Config::from_string("rate: {lambda: 2}\n", "bad.yaml");
   ASSERT_TRUE(bad.ok());
   EXPECT_FALSE(bad->resolve(test::rate_registry()).ok());
-  for (const char* sweep : {"fern_rd", "lego_rd", "ablation"}) {
+  for (const char* sweep : {"fern_rd", "fern_rd_fast", "lego_rd", "ablation"}) {
     auto spec = experiments::load_sweep(root + "/configs/sweeps/" + sweep + ".yaml");
     ASSERT_TRUE(spec.ok()) << sweep << ": " << spec.status().to_string();
     EXPECT_EQ(spec->rate_key, "rate.lambda") << sweep;

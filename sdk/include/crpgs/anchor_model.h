@@ -72,8 +72,19 @@ struct RateOptions {
   double subset = 0.05;          ///< fraction of the visible active anchors the rate is measured on
   QuantSteps q0;                 ///< Q0 of features, (activated) scaling, offsets
   bool recompute_bounds = true;  ///< HAC: bounds recomputed at rate_start; false: frozen (SFA)
+  std::string geometry = "draco";  ///< how the bitstream codes anchor positions: draco or raw
   double lr_context_init = 5e-3, lr_context_final = 1e-5;          ///< grid (HAC encoding_xyz)
   double lr_context_mlp_init = 5e-3, lr_context_mlp_final = 1e-5;  ///< HAC mlp_grid
+};
+
+/// CRP-GS's anchor links (method.md §6.2-§6.3, §7.6-§7.10; config `rate.leaf_*`): a link
+/// strategy (a ContextModel's build_links) pairs leaves with roots; the leaf-feature mean comes
+/// from a leaf MLP conditioned on the root's quantised feature (LeafMlp).
+struct LinkOptions {
+  int leaf_hidden = 60;                              ///< hidden width of the leaf MLP
+  double lr_leaf_init = 5e-3, lr_leaf_final = 5e-5;  ///< log-linear over [lr_start, lr_end]
+  int lr_start = 30000, lr_end = 40000;
+  bool residual = false;  ///< μ_l = μ_base + MLP(·), last layer zero-initialised
 };
 
 /// What generate(..., for_training = true) does to the attributes (method.md §2.3). Only used
@@ -193,6 +204,26 @@ class AnchorModel {
   ContextModel* context() const;  ///< null without the rate path
   EntropyModel* entropy() const;  ///< null without the rate path
   const RateOptions& rate_options() const;
+  /// Attaches a link strategy and creates the leaf MLP (drawn from `gen`; its tensors join
+  /// mlp_tensors() as kLeafMlpNames and the optimizer with schedule `leaf_mlp`). Requires the
+  /// rate path; call before loading a checkpoint.
+  Status attach_links(std::shared_ptr<ContextModel> links, const LinkOptions& options,
+                      torch::Generator gen);
+  bool has_links() const;
+  ContextModel* link_strategy() const;  ///< null without links
+  /// (Re)builds the links from scratch from the current raw features, positions and activity
+  /// (method.md §7.6). Returns the number of leaves.
+  StatusOr<int64_t> rebuild_links(uint64_t seed);
+  /// [N] int64: the model index of each anchor's root, or -1; undefined before the first build
+  /// (and after growing/pruning, which invalidates them). During training, a leaf whose root is
+  /// inactive uses the base model (method.md §7.10).
+  torch::Tensor links() const;
+  /// The leaf MLP (undefined without links).
+  LeafMlp leaf_mlp() const;
+  /// μ_f the rate term uses for the anchors `rows` [S] (model indices) given their base-model
+  /// means [S, Dc]: the leaf model (on the root's straight-through-quantised feature) for leaves
+  /// of an active root, the base means otherwise. Differentiable.
+  torch::Tensor feature_means(const torch::Tensor& rows, const torch::Tensor& base_mu) const;
   /// Phase of the training-time quantisation (set by the trainer every iteration).
   void set_quant_phase(QuantPhase phase);
   QuantPhase quant_phase() const;

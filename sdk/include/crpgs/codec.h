@@ -7,6 +7,9 @@
 ///   HEAD  counts, voxel size, bounds, Q0s, chunk size
 ///   GEOM  anchor voxels, Draco kd-tree, lossless; every per-anchor stream follows the canonical
 ///         Morton order of these integers, which both sides derive from the decoded voxels
+///   AMSK  (with links) which of the model's N0 anchors are coded, one global Bernoulli
+///   LINK  (with links) the link vector: per coded anchor the canonical index of its root or a
+///         sentinel, w = ceil(log2(N + 1)) bits each (coding/bit_packing.h)
 ///   OMSK  offset masks [N, K], one global Bernoulli
 ///   CTXS  the context component's state (binary hash grid + mlp_grid)
 ///   FTRS  the feature model's state (e.g. SFA's shared grid); absent when it has none
@@ -14,6 +17,11 @@
 ///   FEAT / SCAL / OFFS  feature, scaling, offset symbols, entropy-coded in chunks of
 ///         `chunk` anchors; each chunk's (μ, σ, Q) are predicted from the decoded positions with
 ///         predict_entropy_params on exactly that chunk, on both sides
+/// With links the streams follow the decode order of method.md §6.4: roots, free anchors, then
+/// leaves (each group in canonical order and chunked on its own); a leaf's feature mean comes
+/// from the leaf MLP (MLPS) on its root's decoded feature. Without links it is canonical order.
+/// GEOM is Draco (component org.crpgs.geometry.draco) or raw fixed-width voxel integers
+/// (org.crpgs.geometry.raw, the ablation without a point-cloud codec).
 /// Offsets are coded only where their mask is on. Decoding refuses anything malformed with a
 /// message; it never trusts a count it has not checked against the bytes present.
 #pragma once
@@ -48,7 +56,19 @@ struct CodedModel {
   std::map<std::string, torch::Tensor> mlps;  ///< float32 tensors by name
   QuantSteps q0;
   int64_t chunk = 3000;
+  /// [N] int64: canonical index of each anchor's root, -1 for none (one hop, one-to-one).
+  /// Undefined: a model without links (no AMSK/LINK sections).
+  torch::Tensor links;
+  torch::Tensor anchor_mask;       ///< [N0] bool, written with links: which model anchors are coded
+  std::string geometry = "draco";  ///< "draco" or "raw"
+  bool leaf_residual = false;      ///< the leaf MLP's form (from the config `rate.leaf_residual`)
 };
+
+/// Roots, free anchors and leaves of a link vector [N] (counts).
+struct LinkCounts {
+  int64_t roots = 0, free = 0, leaves = 0;
+};
+LinkCounts count_links(const torch::Tensor& links);
 
 /// The components a bitstream is coded with (built from its config).
 struct CodecComponents {
@@ -62,10 +82,14 @@ torch::Tensor voxel_positions(const torch::Tensor& voxels, double voxel_size);
 /// Positions normalised by the bounds: (p − min) / (max − min), float32. [N, 3]
 torch::Tensor normalize_positions(const torch::Tensor& positions, const torch::Tensor& bounds);
 
-/// Entropy parameters of every anchor of `m`, computed chunk by chunk in canonical order exactly
-/// as the decoder will (the encoder uses them to code, the trainer to evaluate the quantised
-/// model).
+/// Entropy parameters of every anchor of `m` (rows in canonical order), computed chunk by chunk
+/// in coding order exactly as the decoder will. With links, the leaves' μ_f come from the leaf
+/// MLP found in m.mlps on the roots' dequantised feature symbols.
 EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, int64_t coded_dim);
+
+/// The coding order: canonical indices [N] int64 of roots, free anchors, leaves (identity
+/// without links).
+torch::Tensor coding_order(const torch::Tensor& links, int64_t n);
 
 /// Training-time rate estimate (Σ −log2 p, the quantity the rate term minimises) of each symbol
 /// stream ("FEAT", "SCAL", "OFFS") under the given parameters.

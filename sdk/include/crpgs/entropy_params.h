@@ -5,10 +5,14 @@
 /// model is evaluated with are exactly the ones in the bitstream.
 #pragma once
 
+#include <map>
+#include <string>
+
 #include <torch/types.h>
 
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
+#include "crpgs/status.h"
 
 namespace crpgs {
 
@@ -35,5 +39,31 @@ EntropyParams split_entropy_params(const torch::Tensor& context_out,
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
                                      int64_t chunk = 3000);
+
+/// CRP-GS's leaf-feature mean (method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
+/// Linear(Dc + 6 → H) → ReLU → Linear(H → Dc), positions normalised by the anchor bounds; with
+/// `residual`, μ_l = μ_base + MLP(·). σ and Q of a leaf stay the base model's.
+struct LeafMlp {
+  torch::Tensor w1, b1, w2, b2;  ///< [H, Dc + 6], [H], [Dc, H], [Dc]
+  bool residual = false;
+  bool defined() const { return w1.defined(); }
+};
+
+/// Names of the leaf MLP's tensors among a model's MLP tensors (AnchorModel::mlp_tensors(), the
+/// bitstream's MLPS section).
+inline constexpr const char* kLeafMlpNames[4] = {"leaf_mlp.w1", "leaf_mlp.b1", "leaf_mlp.w2",
+                                                 "leaf_mlp.b2"};
+
+/// The leaf MLP from named tensors; undefined when `mlps` has none of them. kInvalidArgument if
+/// only some are there or their shapes disagree with coded_dim.
+StatusOr<LeafMlp> leaf_mlp_from(const std::map<std::string, torch::Tensor>& mlps, int64_t coded_dim,
+                                bool residual);
+
+/// μ of the leaves' features. root_features: the roots' decoded (quantised) features [L, Dc];
+/// root_pos01, leaf_pos01: [L, 3]; base_mu: the base model's μ_f of the leaves [L, Dc] (used with
+/// `residual`). Differentiable; the codec calls it in fixed chunks on both sides.
+torch::Tensor leaf_feature_mean(const LeafMlp& mlp, const torch::Tensor& root_features,
+                                const torch::Tensor& root_pos01, const torch::Tensor& leaf_pos01,
+                                const torch::Tensor& base_mu);
 
 }  // namespace crpgs

@@ -35,11 +35,19 @@ struct Schedule {
   /// plus rate and mask terms for it > rate_start.
   int quant_start = 3000;
   int rate_start = 10000;
+  /// Learning-rate schedules run over lr_steps iterations and stay at their final values after
+  /// (CRP-GS trains 40k iterations on HAC's 30k schedules, method.md §7.7).
+  int lr_steps = 30000;
+  /// Iterations at which the anchor links are (re)built from scratch (method.md §7.6); only used
+  /// with a `links` component.
+  std::vector<int> link_builds{30000, 33000, 36000};
   /// HAC's 30k schedule.
   static Schedule full();
   /// Every boundary (and the iteration count) of full() multiplied by `factor` (0 < f <= 1),
   /// rounded, with update_interval >= 1.
   static Schedule scaled(double factor);
+  /// The same scaling applied to this schedule (e.g. a 40k CRP-GS schedule).
+  Schedule scaled_by(double factor) const;
 };
 
 struct TrainOptions {
@@ -75,6 +83,7 @@ struct RateReport {
   double mask_loss = 0;        ///< mean(sigmoid(mask logits)); x mask_lambda
   int64_t subset = 0;          ///< anchors the rate was measured on
   double active_fraction = 0;  ///< active anchors / all anchors
+  int64_t leaves = 0;          ///< anchors linked to a root (0 without links)
 };
 
 /// Wall-clock split of the iterations run so far (seconds, summed).
@@ -149,12 +158,17 @@ StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved);
 StatusOr<TrainOptions> train_options_from_config(const Config& resolved);
 /// Reads the `rate` section.
 StatusOr<RateOptions> rate_options_from_config(const Config& resolved);
+/// The leaf-MLP options of the `rate` section; its lr window runs from the schedule's first link
+/// build to its end.
+StatusOr<LinkOptions> link_options_from_config(const Config& resolved, const Schedule& schedule);
 
 /// The rate path's components (both null: plain Scaffold-GS training, nothing rate-related).
 struct RateSetup {
   std::shared_ptr<ContextModel> context;
   std::shared_ptr<EntropyModel> entropy;
   RateOptions options;
+  std::shared_ptr<ContextModel> links;  ///< a link strategy (CRP-GS); null: none
+  LinkOptions link_options;
 };
 
 struct SetupOptions {

@@ -4,8 +4,11 @@
 
 #include <dlfcn.h>
 
+#include <functional>
+
 #include <torch/torch.h>
 
+#include "crpgs/coding/bit_packing.h"
 #include "crpgs/coding/bitstream.h"
 #include "crpgs/coding/geometry.h"
 #include "crpgs/coding/range_coder.h"
@@ -112,7 +115,117 @@ std::array<StreamArgs, 3> stream_args(const EntropyParams& p, const torch::Tenso
 
 constexpr const char* kStreamIds[3] = {"FEAT", "SCAL", "OFFS"};
 
+/// Where the anchors go in the symbol streams (codec.h): coding position -> canonical index,
+/// the chunks (ranges of coding positions, never straddling a group), and for the leaves (the
+/// last group) the coding position of their root.
+struct CodingPlan {
+  torch::Tensor order;  // [N] int64
+  std::vector<std::pair<int64_t, int64_t>> chunks;
+  int64_t leaf_begin = 0;   // first leaf's coding position (N without links)
+  torch::Tensor root_slot;  // [N - leaf_begin] int64
+};
+
+CodingPlan make_plan(const torch::Tensor& links, int64_t n, int64_t chunk) {
+  CodingPlan plan;
+  plan.order = coding_order(links, n);
+  plan.leaf_begin = n;
+  std::vector<int64_t> bounds{0};
+  if (links.defined()) {
+    const auto c = count_links(links);
+    bounds.push_back(c.roots);
+    bounds.push_back(c.roots + c.free);
+    plan.leaf_begin = c.roots + c.free;
+    auto slot = torch::empty({n}, torch::kLong);
+    slot.index_put_({plan.order}, torch::arange(n, torch::kLong));
+    plan.root_slot =
+        slot.index_select(0, links.index_select(0, plan.order.slice(0, plan.leaf_begin, n)));
+  }
+  bounds.push_back(n);
+  for (size_t g = 0; g + 1 < bounds.size(); ++g)
+    for (int64_t s = bounds[g]; s < bounds[g + 1]; s += chunk)
+      plan.chunks.emplace_back(s, std::min(bounds[g + 1], s + chunk));
+  return plan;
+}
+
+EntropyParams map_params(const EntropyParams& p,
+                         const std::function<torch::Tensor(const torch::Tensor&)>& f) {
+  return {f(p.mu_f),    f(p.sigma_f), f(p.mu_s), f(p.sigma_s), f(p.mu_o),
+          f(p.sigma_o), f(p.q_f),     f(p.q_s),  f(p.q_o)};
+}
+
+/// Base-model parameters of every anchor in coding order (chunked as predict_entropy_params).
+EntropyParams base_params(const CodedModel& m, const CodingPlan& plan, ContextModel& context,
+                          int64_t coded_dim) {
+  torch::NoGradGuard no_grad;
+  SingleThreaded one_thread;
+  const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
+                         .index_select(0, plan.order);
+  const EntropyParamLayout layout{coded_dim, m.offset_masks.size(1)};
+  return map_params(predict_entropy_params(context, pos01, layout, m.q0, m.chunk),
+                    [](const torch::Tensor& t) { return t.contiguous(); });
+}
+
+/// Replaces the leaves' μ_f (coding positions >= leaf_begin) with the leaf model, given the
+/// feature symbols of the roots (in coding order; only rows < leaf_begin are read).
+Status apply_leaf_means(const CodedModel& m, const CodingPlan& plan, const LeafMlp& mlp,
+                        const torch::Tensor& feature_sym_coded, EntropyParams* p) {
+  const int64_t n = plan.order.size(0), leaves = n - plan.leaf_begin;
+  if (leaves == 0) return OkStatus();
+  if (!mlp.defined()) return corrupt("the model has leaves but no leaf MLP");
+  torch::NoGradGuard no_grad;
+  SingleThreaded one_thread;
+  const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
+                         .index_select(0, plan.order);
+  for (int64_t s = 0; s < leaves; s += m.chunk) {
+    const int64_t e = std::min(leaves, s + m.chunk);
+    const auto roots = plan.root_slot.slice(0, s, e);
+    const auto root_feat =
+        feature_sym_coded.index_select(0, roots).to(torch::kFloat) * p->q_f.index_select(0, roots);
+    const auto rows = torch::arange(plan.leaf_begin + s, plan.leaf_begin + e, torch::kLong);
+    const auto mu = leaf_feature_mean(mlp, root_feat, pos01.index_select(0, roots),
+                                      pos01.index_select(0, rows), p->mu_f.index_select(0, rows));
+    p->mu_f.slice(0, plan.leaf_begin + s, plan.leaf_begin + e).copy_(mu);
+  }
+  return OkStatus();
+}
+
+/// Rows of coding-order tensors back in canonical order.
+torch::Tensor to_canonical(const torch::Tensor& t, const CodingPlan& plan) {
+  auto out = torch::empty_like(t);
+  out.index_copy_(0, plan.order, t);
+  return out;
+}
+
+bool leaf_residual_of(const Config& config) {
+  const YAML::Node r = config.section("rate");
+  return r && r["leaf_residual"] && r["leaf_residual"].as<bool>();
+}
+
 }  // namespace
+
+LinkCounts count_links(const torch::Tensor& links) {
+  LinkCounts c;
+  if (!links.defined() || links.numel() == 0) return c;
+  const auto l = links.to(torch::kLong);
+  const auto is_leaf = l >= 0;
+  auto is_root = torch::zeros_like(is_leaf);
+  if (is_leaf.any().item<bool>()) is_root.index_fill_(0, l.masked_select(is_leaf), true);
+  c.leaves = is_leaf.sum().item<int64_t>();
+  c.roots = is_root.sum().item<int64_t>();
+  c.free = l.size(0) - c.leaves - c.roots;
+  return c;
+}
+
+torch::Tensor coding_order(const torch::Tensor& links, int64_t n) {
+  if (!links.defined()) return torch::arange(n, torch::kLong);
+  const auto l = links.to(torch::kLong);
+  const auto is_leaf = l >= 0;
+  auto is_root = torch::zeros_like(is_leaf);
+  if (is_leaf.any().item<bool>()) is_root.index_fill_(0, l.masked_select(is_leaf), true);
+  const auto is_free = ~is_leaf & ~is_root;
+  return torch::cat(
+      {is_root.nonzero().view(-1), is_free.nonzero().view(-1), is_leaf.nonzero().view(-1)});
+}
 
 torch::Tensor voxel_positions(const torch::Tensor& voxels, double voxel_size) {
   return voxels.to(torch::kFloat) * static_cast<float>(voxel_size);
@@ -124,11 +237,13 @@ torch::Tensor normalize_positions(const torch::Tensor& positions, const torch::T
 }
 
 EntropyParams coded_entropy_params(const CodedModel& m, ContextModel& context, int64_t coded_dim) {
-  torch::NoGradGuard no_grad;
-  SingleThreaded one_thread;
-  const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds);
-  const EntropyParamLayout layout{coded_dim, m.offset_masks.size(1)};
-  return predict_entropy_params(context, pos01, layout, m.q0, m.chunk);
+  const CodingPlan plan = make_plan(m.links, m.voxels.size(0), m.chunk);
+  EntropyParams p = base_params(m, plan, context, coded_dim);
+  auto mlp = leaf_mlp_from(m.mlps, coded_dim, m.leaf_residual);
+  TORCH_CHECK(mlp.ok(), mlp.status().to_string());
+  const Status st = apply_leaf_means(m, plan, *mlp, m.feature_sym.index_select(0, plan.order), &p);
+  TORCH_CHECK(st.ok(), st.to_string());
+  return map_params(p, [&](const torch::Tensor& t) { return to_canonical(t, plan); });
 }
 
 std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const EntropyParams& p,
@@ -184,7 +299,23 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   const auto order = coding::morton_order(points);
   for (size_t i = 0; i < order.size(); ++i)
     if (order[i] != i) return bad("anchors are not in canonical (Morton) order");
-  CRPGS_ASSIGN_OR_RETURN(Bytes geometry, coding::encode_positions(points));
+  if (m.geometry != "draco" && m.geometry != "raw")
+    return bad("unknown geometry coding '" + m.geometry + "' (draco, raw)");
+  CRPGS_ASSIGN_OR_RETURN(Bytes geometry, m.geometry == "raw" ? coding::encode_voxels_raw(points)
+                                                             : coding::encode_positions(points));
+  if (m.leaf_residual != leaf_residual_of(config))
+    return bad("the leaf MLP form disagrees with the config's rate.leaf_residual");
+  std::vector<int32_t> links;
+  if (m.links.defined()) {
+    if (m.links.dim() != 1 || m.links.size(0) != N) return bad("links must be [N]");
+    const auto l = m.links.to(torch::kLong).contiguous();
+    const int64_t* lp = l.data_ptr<int64_t>();
+    for (int64_t i = 0; i < N; ++i) {
+      if (lp[i] < -1 || lp[i] >= N || lp[i] == i) return bad("link out of range");
+      if (lp[i] >= 0 && lp[lp[i]] >= 0) return bad("links must be one hop (a root is a leaf)");
+      links.push_back(int32_t(lp[i]));
+    }
+  }
 
   coding::ContainerWriter w(config.hash());
   const std::string conf = config.dump();
@@ -203,7 +334,23 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   head.put_f64(m.q0.offset);
   CRPGS_RETURN_IF_ERROR(w.add_section("HEAD", kComponent, kMajor, kMinor, head.take()));
   CRPGS_RETURN_IF_ERROR(
-      w.add_section("GEOM", "org.crpgs.geometry.draco", 1, 0, std::move(geometry)));
+      w.add_section("GEOM", "org.crpgs.geometry." + m.geometry, 1, 0, std::move(geometry)));
+  if (m.links.defined()) {
+    // The active-anchor mask is redundant for decoding (method.md §7.11); written so the size
+    // accounting matches the paper's side information.
+    if (!m.anchor_mask.defined() || m.anchor_mask.sum().item<int64_t>() != N)
+      return bad("the anchor mask must mark exactly the N coded anchors");
+    const auto am = m.anchor_mask.to(torch::kBool).contiguous();
+    std::vector<uint8_t> am_bits(size_t(am.numel()));
+    for (size_t i = 0; i < am_bits.size(); ++i) am_bits[i] = am.data_ptr<bool>()[i] ? 1 : 0;
+    ByteWriter amsk;
+    amsk.put_varint(am_bits.size());
+    CRPGS_ASSIGN_OR_RETURN(Bytes am_coded, coding::encode_bernoulli(am_bits));
+    amsk.put_bytes(am_coded);
+    CRPGS_RETURN_IF_ERROR(w.add_section("AMSK", kComponent, kMajor, kMinor, amsk.take()));
+    CRPGS_ASSIGN_OR_RETURN(Bytes link_bytes, coding::pack_links(links));
+    CRPGS_RETURN_IF_ERROR(w.add_section("LINK", kComponent, kMajor, kMinor, std::move(link_bytes)));
+  }
 
   const auto masks = m.offset_masks.to(torch::kBool).contiguous();
   std::vector<uint8_t> bits(size_t(N * K));
@@ -224,16 +371,21 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   CRPGS_RETURN_IF_ERROR(w.add_section("MLPS", kComponent, kMajor, kMinor, mlps.take()));
 
   EncodeResult result;
-  const EntropyParams p = coded_entropy_params(m, *c.context, Dc);
+  const CodingPlan plan = make_plan(m.links, N, m.chunk);
+  EntropyParams p = base_params(m, plan, *c.context, Dc);
+  CRPGS_ASSIGN_OR_RETURN(LeafMlp leaf, leaf_mlp_from(m.mlps, Dc, m.leaf_residual));
+  const auto feat_c = m.feature_sym.index_select(0, plan.order);
+  CRPGS_RETURN_IF_ERROR(apply_leaf_means(m, plan, leaf, feat_c, &p));
+  const auto scal_c = m.scaling_sym.index_select(0, plan.order);
+  const auto offs_c = m.offset_sym.index_select(0, plan.order);
+  const auto masks_c = masks.index_select(0, plan.order);
   std::array<ByteWriter, 3> streams;
   torch::NoGradGuard no_grad;
-  for (int64_t s = 0; s < N; s += m.chunk) {
-    const int64_t e = std::min(N, s + m.chunk);
-    EntropyParams pc{p.mu_f.slice(0, s, e),    p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
-                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e),    p.sigma_o.slice(0, s, e),
-                     p.q_f.slice(0, s, e),     p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
-    const auto args = stream_args(pc, m.feature_sym.slice(0, s, e), m.scaling_sym.slice(0, s, e),
-                                  m.offset_sym.slice(0, s, e), masks.slice(0, s, e), K);
+  for (const auto& [s, e] : plan.chunks) {
+    const EntropyParams pc =
+        map_params(p, [s = s, e = e](const torch::Tensor& t) { return t.slice(0, s, e); });
+    const auto args = stream_args(pc, feat_c.slice(0, s, e), scal_c.slice(0, s, e),
+                                  offs_c.slice(0, s, e), masks_c.slice(0, s, e), K);
     for (int k = 0; k < 3; ++k) {
       const auto& a = args[size_t(k)];
       const auto sym = a.symbols.to(torch::kInt).contiguous();
@@ -243,7 +395,8 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
       streams[size_t(k)].put_bytes(bytes);
     }
   }
-  const auto estimated = estimated_stream_bits(m, p, *c.entropy);
+  const auto estimated = estimated_stream_bits(
+      m, map_params(p, [&](const torch::Tensor& t) { return to_canonical(t, plan); }), *c.entropy);
   for (int k = 0; k < 3; ++k) {
     Bytes payload = streams[size_t(k)].take();
     result.estimated_vs_coded_bits[kStreamIds[k]] = {estimated.at(kStreamIds[k]),
@@ -323,14 +476,49 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
 
   // 3. Geometry: its decoded count is the only trusted N.
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* gs, section("GEOM"));
-  CRPGS_ASSIGN_OR_RETURN(std::vector<coding::Voxel> points,
-                         coding::decode_positions(ByteSpan(gs->payload)));
+  std::vector<coding::Voxel> points;
+  if (gs->component_id == "org.crpgs.geometry.raw") {
+    m.geometry = "raw";
+    CRPGS_ASSIGN_OR_RETURN(points, coding::decode_voxels_raw(ByteSpan(gs->payload)));
+  } else if (gs->component_id == "org.crpgs.geometry.draco") {
+    CRPGS_ASSIGN_OR_RETURN(points, coding::decode_positions(ByteSpan(gs->payload)));
+  } else {
+    return corrupt("GEOM: unknown geometry coding '" + gs->component_id + "'");
+  }
   if (points.size() != N)
     return corrupt("GEOM holds " + std::to_string(points.size()) + " anchors, HEAD claims " +
                    std::to_string(N));
   m.voxels = torch::empty({int64_t(N), 3}, torch::kInt);
   for (size_t i = 0; i < points.size(); ++i)
     for (int a = 0; a < 3; ++a) m.voxels[int64_t(i)][a] = points[i][size_t(a)];
+
+  // Links (CRP-GS): the active-anchor mask (checked, not needed) and the link vector.
+  m.leaf_residual = leaf_residual_of(out.config);
+  if (const coding::Section* as = ct.find("AMSK")) {
+    ByteReader ar(ByteSpan(as->payload), "AMSK");
+    uint64_t n0 = 0;
+    CRPGS_RETURN_IF_ERROR(ar.read_varint(&n0));
+    if (n0 < N || n0 > (uint64_t(1) << 32))
+      return corrupt("AMSK: " + std::to_string(n0) + " anchors");
+    coding::ByteSpan rest;
+    CRPGS_RETURN_IF_ERROR(ar.read_span(ar.remaining(), &rest));
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> am, coding::decode_bernoulli(rest, size_t(n0)));
+    uint64_t on = 0;
+    for (uint8_t b : am) on += b;
+    if (on != N)
+      return corrupt("AMSK marks " + std::to_string(on) + " anchors, GEOM holds " +
+                     std::to_string(N));
+    m.anchor_mask = torch::from_blob(am.data(), {int64_t(n0)}, torch::kUInt8).to(torch::kBool);
+  }
+  if (const coding::Section* ls = ct.find("LINK")) {
+    CRPGS_ASSIGN_OR_RETURN(std::vector<int32_t> links, coding::unpack_links(ByteSpan(ls->payload)));
+    if (links.size() != N)
+      return corrupt("LINK holds " + std::to_string(links.size()) + " entries for " +
+                     std::to_string(N) + " anchors");
+    for (int32_t r : links)
+      if (r >= 0 && links[size_t(r)] >= 0) return corrupt("LINK: a root is itself a leaf");
+    m.links = torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong);
+  }
 
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* ms, section("OMSK"));
   CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bits,
@@ -360,25 +548,31 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   }
   if (!mr.at_end()) return mr.error("trailing bytes");
 
-  // 5. Symbol streams, chunk by chunk, with the parameters the encoder used.
-  out.params = coded_entropy_params(m, *c.context, int64_t(Dc));
-  const EntropyParams& p = out.params;
+  // 5. Symbol streams, chunk by chunk in coding order, with the parameters the encoder used;
+  // the leaves' means once every root is decoded.
+  const CodingPlan plan = make_plan(m.links, int64_t(N), m.chunk);
+  EntropyParams p = base_params(m, plan, *c.context, int64_t(Dc));
+  CRPGS_ASSIGN_OR_RETURN(LeafMlp leaf, leaf_mlp_from(m.mlps, int64_t(Dc), m.leaf_residual));
+  const auto masks_c = m.offset_masks.index_select(0, plan.order);
   std::vector<ByteReader> readers;
   for (const char* id : kStreamIds) {
     CRPGS_ASSIGN_OR_RETURN(const coding::Section* ss, section(id));
     readers.emplace_back(ByteSpan(ss->payload), id);
   }
   const int64_t n = int64_t(N);
-  m.feature_sym = torch::zeros({n, int64_t(Dc)}, torch::kInt);
-  m.scaling_sym = torch::zeros({n, 6}, torch::kInt);
-  m.offset_sym = torch::zeros({n, int64_t(K), 3}, torch::kInt);
+  auto feat_c = torch::zeros({n, int64_t(Dc)}, torch::kInt);
+  auto scal_c = torch::zeros({n, 6}, torch::kInt);
+  auto offs_c = torch::zeros({n, int64_t(K), 3}, torch::kInt);
   torch::NoGradGuard no_grad;
-  for (int64_t s = 0; s < n; s += m.chunk) {
-    const int64_t e = std::min(n, s + m.chunk);
-    EntropyParams pc{p.mu_f.slice(0, s, e),    p.sigma_f.slice(0, s, e), p.mu_s.slice(0, s, e),
-                     p.sigma_s.slice(0, s, e), p.mu_o.slice(0, s, e),    p.sigma_o.slice(0, s, e),
-                     p.q_f.slice(0, s, e),     p.q_s.slice(0, s, e),     p.q_o.slice(0, s, e)};
-    const auto masks = m.offset_masks.slice(0, s, e);
+  bool leaves_ready = false;
+  for (const auto& [s, e] : plan.chunks) {
+    if (s >= plan.leaf_begin && !leaves_ready) {
+      CRPGS_RETURN_IF_ERROR(apply_leaf_means(m, plan, leaf, feat_c, &p));
+      leaves_ready = true;
+    }
+    const EntropyParams pc =
+        map_params(p, [s = s, e = e](const torch::Tensor& t) { return t.slice(0, s, e); });
+    const auto masks = masks_c.slice(0, s, e);
     const auto a =
         stream_args(pc, torch::Tensor(), torch::Tensor(), torch::Tensor(), masks, int64_t(K));
     std::array<torch::Tensor, 3> decoded;
@@ -395,15 +589,19 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
         return corrupt(std::string(kStreamIds[k]) + " chunk at anchor " + std::to_string(s) + ": " +
                        err);
     }
-    m.feature_sym.slice(0, s, e).copy_(decoded[0].view({e - s, int64_t(Dc)}));
-    m.scaling_sym.slice(0, s, e).copy_(decoded[1].view({e - s, 6}));
+    feat_c.slice(0, s, e).copy_(decoded[0].view({e - s, int64_t(Dc)}));
+    scal_c.slice(0, s, e).copy_(decoded[1].view({e - s, 6}));
     const auto sel = masks.unsqueeze(2).expand({e - s, int64_t(K), 3});
     auto block = torch::zeros({e - s, int64_t(K), 3}, torch::kInt);
     block.masked_scatter_(sel, decoded[2].to(torch::kInt));
-    m.offset_sym.slice(0, s, e).copy_(block);
+    offs_c.slice(0, s, e).copy_(block);
   }
   for (int k = 0; k < 3; ++k)
     if (!readers[size_t(k)].at_end()) return readers[size_t(k)].error("trailing bytes");
+  m.feature_sym = to_canonical(feat_c, plan);
+  m.scaling_sym = to_canonical(scal_c, plan);
+  m.offset_sym = to_canonical(offs_c, plan);
+  out.params = map_params(p, [&](const torch::Tensor& t) { return to_canonical(t, plan); });
   return out;
 }
 
@@ -438,8 +636,35 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   const auto perm =
       torch::from_blob(const_cast<uint32_t*>(order.data()), {int64_t(order.size())}, torch::kInt)
           .to(torch::kLong);
-  QuantizedAttributes q = model.quantize(idx.index({perm}));
+  const auto canon = idx.index({perm});  // model index of each canonical anchor
+  const int64_t n = canon.size(0);
   CodedModel m;
+  if (model.has_links()) {
+    // Sanitise (method.md §7.10): a link whose leaf or root is not coded is dropped; the rest
+    // are remapped to canonical indices. Links never built: every anchor is free.
+    m.links = torch::full({n}, -1, torch::kLong);
+    if (model.links().defined()) {
+      auto rank = torch::full({model.num_anchors()}, -1, torch::kLong);
+      rank.index_put_({canon}, torch::arange(n, torch::kLong));
+      const auto root = model.links().index_select(0, canon);  // [n] model index or -1
+      m.links = torch::where(root >= 0, rank.index_select(0, root.clamp_min(0)), m.links);
+    }
+    m.anchor_mask = model.active_anchors();
+    m.leaf_residual = model.leaf_mlp().residual;
+  }
+  m.geometry = model.rate_options().geometry;
+  // Quantise in coding order, so the steps come from the same context chunks as the decoder's.
+  const auto coded_order = coding_order(m.links, n);
+  QuantizedAttributes q = model.quantize(canon.index_select(0, coded_order));
+  auto back = torch::empty_like(coded_order);
+  back.index_put_({coded_order}, torch::arange(n, torch::kLong));
+  auto rows = [&](torch::Tensor& t) { t = t.index_select(0, back); };
+  for (torch::Tensor* t :
+       {&q.index, &q.positions, &q.positions01, &q.params.mu_f, &q.params.sigma_f, &q.params.mu_s,
+        &q.params.sigma_s, &q.params.mu_o, &q.params.sigma_o, &q.params.q_f, &q.params.q_s,
+        &q.params.q_o, &q.feature_symbols, &q.scaling_symbols, &q.offset_symbols, &q.features,
+        &q.scaling, &q.offsets, &q.offset_masks})
+    rows(*t);
   m.voxel_size = model.voxel_size();
   m.bounds = q.bounds.to(torch::kFloat);
   m.voxels = vox.index({perm}).contiguous();

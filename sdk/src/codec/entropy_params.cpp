@@ -37,4 +37,38 @@ EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor&
   return split_entropy_params(out, layout, q0);
 }
 
+StatusOr<LeafMlp> leaf_mlp_from(const std::map<std::string, torch::Tensor>& mlps, int64_t coded_dim,
+                                bool residual) {
+  LeafMlp m;
+  m.residual = residual;
+  torch::Tensor* dst[4] = {&m.w1, &m.b1, &m.w2, &m.b2};
+  int found = 0;
+  for (int i = 0; i < 4; ++i) {
+    auto it = mlps.find(kLeafMlpNames[i]);
+    if (it == mlps.end()) continue;
+    *dst[i] = it->second;
+    ++found;
+  }
+  if (found == 0) return LeafMlp{};
+  auto bad = [](const std::string& msg) {
+    return Status(StatusCode::kInvalidArgument, "leaf MLP: " + msg);
+  };
+  if (found != 4) return bad("some of its tensors are missing");
+  const int64_t H = m.w1.dim() == 2 ? m.w1.size(0) : -1;
+  if (H < 1 || m.w1.sizes() != torch::IntArrayRef({H, coded_dim + 6}) ||
+      m.b1.sizes() != torch::IntArrayRef({H}) ||
+      m.w2.sizes() != torch::IntArrayRef({coded_dim, H}) ||
+      m.b2.sizes() != torch::IntArrayRef({coded_dim}))
+    return bad("tensor shapes do not match a feature width of " + std::to_string(coded_dim));
+  return m;
+}
+
+torch::Tensor leaf_feature_mean(const LeafMlp& mlp, const torch::Tensor& root_features,
+                                const torch::Tensor& root_pos01, const torch::Tensor& leaf_pos01,
+                                const torch::Tensor& base_mu) {
+  const auto in = torch::cat({root_features, root_pos01, leaf_pos01}, 1);  // [L, Dc + 6]
+  auto mu = torch::linear(torch::relu(torch::linear(in, mlp.w1, mlp.b1)), mlp.w2, mlp.b2);
+  return mlp.residual ? base_mu + mu : mu;
+}
+
 }  // namespace crpgs

@@ -2,6 +2,8 @@
 /// @brief Draco kd-tree coding of integer anchor voxels, Morton order, raw 16-bit fallback.
 #include "crpgs/coding/geometry.h"
 
+#include "crpgs/coding/bit_packing.h"
+
 #include <draco/compression/decode.h>
 #include <draco/compression/encode.h>
 #include <draco/point_cloud/point_cloud_builder.h>
@@ -169,6 +171,66 @@ StatusOr<std::vector<Voxel>> decode_positions(ByteSpan bytes) {
 }
 
 // --- Raw 16-bit fallback ---------------------------------------------------------------------
+
+StatusOr<Bytes> encode_voxels_raw(const std::vector<Voxel>& points) {
+  if (points.size() > size_t(std::numeric_limits<int32_t>::max()))
+    return invalid("raw geometry: too many points");
+  Voxel lo{0, 0, 0};
+  int64_t extent = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (i > 0 && !morton_less(points[i - 1], points[i]))
+      return invalid("raw geometry: points must be unique and in Morton order");
+    for (int a = 0; a < 3; ++a)
+      lo[size_t(a)] = i == 0 ? points[i][size_t(a)] : std::min(lo[size_t(a)], points[i][size_t(a)]);
+  }
+  for (const auto& p : points)
+    for (int a = 0; a < 3; ++a)
+      extent = std::max(extent, int64_t(p[size_t(a)]) - int64_t(lo[size_t(a)]));
+  int width = 1;
+  while (width < 32 && (extent >> width) != 0) ++width;
+  std::vector<uint32_t> values;
+  values.reserve(points.size() * 3);
+  for (const auto& p : points)
+    for (int a = 0; a < 3; ++a)
+      values.push_back(uint32_t(int64_t(p[size_t(a)]) - int64_t(lo[size_t(a)])));
+  CRPGS_ASSIGN_OR_RETURN(Bytes packed, pack_bits(values, width));
+  ByteWriter w;
+  w.put_u8(1);
+  w.put_varint(points.size());
+  for (int32_t v : lo) w.put_i32(v);
+  w.put_u8(uint8_t(width));
+  w.put_bytes(packed);
+  return w.take();
+}
+
+StatusOr<std::vector<Voxel>> decode_voxels_raw(ByteSpan bytes) {
+  ByteReader r(bytes, "raw geometry");
+  uint8_t format = 0, width = 0;
+  uint64_t n = 0;
+  CRPGS_RETURN_IF_ERROR(r.read_u8(&format));
+  if (format != 1) return corrupt("raw geometry: unknown format " + std::to_string(format));
+  CRPGS_RETURN_IF_ERROR(r.read_varint(&n));
+  Voxel lo{};
+  for (int32_t& v : lo) CRPGS_RETURN_IF_ERROR(r.read_i32(&v));
+  CRPGS_RETURN_IF_ERROR(r.read_u8(&width));
+  if (width < 1 || width > 32) return corrupt("raw geometry: width " + std::to_string(width));
+  if (n > r.remaining() * 8 / (3 * uint64_t(width)))
+    return corrupt("raw geometry: " + std::to_string(n) + " points do not fit the section");
+  ByteSpan rest;
+  CRPGS_RETURN_IF_ERROR(r.read_span(r.remaining(), &rest));
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint32_t> values, unpack_bits(rest, size_t(n) * 3, width));
+  std::vector<Voxel> points(static_cast<size_t>(n));
+  for (size_t i = 0; i < points.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      const int64_t v = int64_t(lo[size_t(a)]) + int64_t(values[3 * i + size_t(a)]);
+      if (v > std::numeric_limits<int32_t>::max()) return corrupt("raw geometry: out of range");
+      points[i][size_t(a)] = int32_t(v);
+    }
+    if (i > 0 && !morton_less(points[i - 1], points[i]))
+      return corrupt("raw geometry: points not strictly in Morton order");
+  }
+  return points;
+}
 
 StatusOr<Raw16Positions> quantize_raw16(const std::vector<std::array<float, 3>>& xyz,
                                         const std::array<float, 3>& lo,

@@ -106,6 +106,9 @@ struct RenderValues {
   torch::Tensor scaling;      // [A, 6] activated
   torch::Tensor offsets;      // [A, K, 3]
   torch::Tensor mask;         // [A, K] float 0/1
+  // [A, F] the feature model's output, computed once: SFA's shared feature is per anchor, not
+  // per rendered view (method.md §7.15).
+  torch::Tensor mlp_features;
 };
 
 struct AnchorModel::Impl {
@@ -126,6 +129,11 @@ struct AnchorModel::Impl {
   RateOptions rate;
   QuantPhase phase = QuantPhase::kRaw;
   torch::Generator gen;
+  // Anchor links (CRP-GS, method.md §6.2-§6.3).
+  std::shared_ptr<ContextModel> link_strategy;
+  LinkOptions link_opt;
+  torch::Tensor links;                  // [N] int64 root model index or -1; undefined until built
+  int i_leaf = -1;                      // first of the 4 leaf-MLP groups
   std::optional<RenderValues> over;     // set_quantized
   std::optional<RenderValues> decoded;  // from_decoded: always rendered
   // Statistics (method.md §1.4).
@@ -187,7 +195,38 @@ struct AnchorModel::Impl {
     g.v = g.v.index_select(0, idx);
   }
   int64_t grow(const torch::Tensor& grads, const torch::Tensor& offset_mask, torch::Generator& gen);
+  torch::Tensor leaf_means(const torch::Tensor& rows, const torch::Tensor& base_mu) const;
 };
+
+// μ_f of the anchors `rows` [S] with the leaf model where the anchor is a leaf of an active root
+// (method.md §7.9-§7.10): f̂_root = round(f/Q)·Q through a straight-through estimator with Q
+// detached; the root's Q and position are computed on demand (it need not be visible).
+torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
+                                            const torch::Tensor& base_mu) const {
+  auto root = links.index_select(0, rows);  // [S]
+  auto is_leaf = root >= 0;
+  if (opt.use_offset_mask) {
+    auto active = (torch::sigmoid(p(i_mask).detach()) > opt.mask_threshold).any(1);
+    is_leaf = is_leaf & active.index_select(0, root.clamp_min(0));
+  }
+  auto leaf_rows = is_leaf.nonzero().squeeze(1);  // [L]
+  if (leaf_rows.size(0) == 0) return base_mu;
+  auto roots = root.index_select(0, leaf_rows);
+  auto root_pos01 = normalise(anchor.index_select(0, roots), bounds);
+  auto leaf_pos01 = normalise(anchor.index_select(0, rows.index_select(0, leaf_rows)), bounds);
+  const EntropyParamLayout layout{features_model->coded_dim(), K};
+  torch::Tensor q_root;
+  {
+    torch::NoGradGuard ng;
+    q_root = split_entropy_params(context->forward(root_pos01), layout, rate.q0).q_f;
+  }
+  auto f_root = p(i_feat).index_select(0, roots);
+  auto f_hat = f_root + (torch::round(f_root / q_root) * q_root - f_root).detach();
+  const LeafMlp mlp{p(i_leaf), p(i_leaf + 1), p(i_leaf + 2), p(i_leaf + 3), link_opt.residual};
+  auto mu_leaf =
+      leaf_feature_mean(mlp, f_hat, root_pos01, leaf_pos01, base_mu.index_select(0, leaf_rows));
+  return base_mu.index_put({leaf_rows}, mu_leaf);
+}
 
 namespace {
 double log_lerp(double a, double b, int it, int max_steps) {
@@ -220,6 +259,9 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
     g.lr = log_lerp(rate.lr_context_init, rate.lr_context_final, it, T);
   else if (g.schedule == "context_mlp")
     g.lr = log_lerp(rate.lr_context_mlp_init, rate.lr_context_mlp_final, it, T);
+  else if (g.schedule == "leaf_mlp")  // its own window (method.md §7.7)
+    g.lr = log_lerp(link_opt.lr_leaf_init, link_opt.lr_leaf_final, it - link_opt.lr_start,
+                    link_opt.lr_end - link_opt.lr_start);
   else
     g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
 }
@@ -463,6 +505,8 @@ std::map<std::string, torch::Tensor> AnchorModel::mlp_tensors() const {
     out[g.name] = g.param.detach();
   }
   if (impl_->i_app >= 0) out["appearance"] = impl_->p(impl_->i_app).detach();
+  if (impl_->i_leaf >= 0)
+    for (int k = 0; k < 4; ++k) out[kLeafMlpNames[k]] = impl_->p(impl_->i_leaf + k).detach();
   return out;
 }
 
@@ -494,6 +538,77 @@ Status AnchorModel::attach_rate(std::shared_ptr<ContextModel> context,
   }
   update_learning_rates(0);
   return OkStatus();
+}
+Status AnchorModel::attach_links(std::shared_ptr<ContextModel> links, const LinkOptions& options,
+                                 torch::Generator gen) {
+  Impl& m = *impl_;
+  if (!links) return Status(StatusCode::kInvalidArgument, "links: no link strategy");
+  if (!m.context) return Status(StatusCode::kInvalidArgument, "links: need the rate path first");
+  if (m.link_strategy) return Status(StatusCode::kInvalidArgument, "links: already attached");
+  if (options.leaf_hidden < 1 || options.lr_end <= options.lr_start)
+    return Status(StatusCode::kInvalidArgument,
+                  "links: leaf_hidden must be >= 1 and the lr window non-empty");
+  torch::NoGradGuard no_grad;
+  m.link_strategy = std::move(links);
+  m.link_opt = options;
+  const int64_t dc = m.features_model->coded_dim();
+  Mlp leaf = make_mlp(dc + 6, options.leaf_hidden, dc, gen);
+  if (options.residual) {  // starts as the base model: no rate spike when links appear
+    leaf.w2.zero_();
+    leaf.b2.zero_();
+  }
+  m.i_leaf = int(m.groups.size());
+  const torch::Tensor parts[4] = {leaf.w1, leaf.b1, leaf.w2, leaf.b2};
+  for (int k = 0; k < 4; ++k) m.add_group(kLeafMlpNames[k], "leaf_mlp", parts[k], false);
+  update_learning_rates(0);
+  return OkStatus();
+}
+bool AnchorModel::has_links() const {
+  return impl_->link_strategy != nullptr;
+}
+ContextModel* AnchorModel::link_strategy() const {
+  return impl_->link_strategy.get();
+}
+StatusOr<int64_t> AnchorModel::rebuild_links(uint64_t seed) {
+  Impl& m = *impl_;
+  if (!m.link_strategy) return Status(StatusCode::kInvalidArgument, "links: none attached");
+  torch::NoGradGuard no_grad;
+  LinkInputs in;
+  in.features = m.p(m.i_feat).detach();  // raw f_i (method.md §7.5)
+  in.positions = m.anchor;
+  in.active = active_anchors();
+  in.seed = seed;
+  auto links = m.link_strategy->build_links(in).to(torch::kLong).contiguous();
+  const int64_t n = m.anchor.size(0);
+  if (links.dim() != 1 || links.size(0) != n)
+    return Status(StatusCode::kInternal,
+                  "links: '" + m.link_strategy->type_name() + "' returned the wrong shape");
+  // One hop, roots and leaves active and distinct: anything else would break the decode order.
+  auto is_leaf = links >= 0;
+  auto roots = links.masked_select(is_leaf);
+  if (roots.numel() > 0 &&
+      (roots.max().item<int64_t>() >= n || is_leaf.index_select(0, roots).any().item<bool>() ||
+       !in.active.index_select(0, roots).all().item<bool>() ||
+       !in.active.masked_select(is_leaf).all().item<bool>() ||
+       torch::bincount(roots).max().item<int64_t>() > 1))
+    return Status(StatusCode::kInternal, "links: '" + m.link_strategy->type_name() +
+                                             "' returned links that are not a one-hop one-to-one "
+                                             "matching of active anchors");
+  m.links = links;
+  return roots.numel();
+}
+torch::Tensor AnchorModel::links() const {
+  return impl_->links;
+}
+torch::Tensor AnchorModel::feature_means(const torch::Tensor& rows,
+                                         const torch::Tensor& base_mu) const {
+  return impl_->links.defined() ? impl_->leaf_means(rows, base_mu) : base_mu;
+}
+LeafMlp AnchorModel::leaf_mlp() const {
+  const Impl& m = *impl_;
+  if (m.i_leaf < 0) return {};
+  return {m.p(m.i_leaf), m.p(m.i_leaf + 1), m.p(m.i_leaf + 2), m.p(m.i_leaf + 3),
+          m.link_opt.residual};
 }
 bool AnchorModel::has_rate() const {
   return impl_->context != nullptr;
@@ -572,6 +687,10 @@ void AnchorModel::set_quantized(const QuantizedAttributes& q) {
   r.scaling = q.scaling;
   r.offsets = q.offsets;
   r.mask = q.offset_masks.to(torch::kFloat);
+  {
+    torch::NoGradGuard ng;
+    r.mlp_features = impl_->features_model->forward(r.features, r.positions01).contiguous();
+  }
   impl_->over = std::move(r);
 }
 void AnchorModel::clear_quantized() {
@@ -656,6 +775,10 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::from_decoded(
   r.scaling = f32(scaling_activated);
   r.offsets = impl->p(impl->i_offset).detach();
   r.mask = offset_masks.to(torch::kFloat);
+  {
+    torch::NoGradGuard ng;
+    r.mlp_features = impl->features_model->forward(r.features, r.positions01).contiguous();
+  }
   impl->decoded = std::move(r);
   impl->reset_stats();
   return std::unique_ptr<AnchorModel>(new AnchorModel(std::move(impl)));
@@ -724,8 +847,9 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
           return m.entropy->bits(clamp_about(x, mean, q), mu, sigma, q);
         };
         auto q_f = sel(ep.q_f), q_s = sel(ep.q_s), q_o = sel(ep.q_o);
-        auto b_f =
-            bits(sel(feat_c), serial_mean(m.p(m.i_feat)), sel(ep.mu_f), sel(ep.sigma_f), q_f);
+        auto mu_f = sel(ep.mu_f);
+        mu_f = feature_means(idx.index_select(0, chosen), mu_f);
+        auto b_f = bits(sel(feat_c), serial_mean(m.p(m.i_feat)), mu_f, sel(ep.sigma_f), q_f);
         auto b_s = bits(sel(scal_v), serial_mean(torch::exp(m.p(m.i_scaling).detach())),
                         sel(ep.mu_s), sel(ep.sigma_s), q_s);
         auto b_o = bits(sel(offs_v).reshape({S, 3 * K}), serial_mean(m.p(m.i_offset)), sel(ep.mu_o),
@@ -741,7 +865,8 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   out.used_features = feat_c;
   out.used_scaling = scal_v;
   out.used_offsets = offs_v;
-  auto feat = m.features_model->forward(feat_c, pos01_v);  // [M, F]
+  auto feat = rv ? rv->mlp_features.index_select(0, idx)
+                 : m.features_model->forward(feat_c, pos01_v);  // [M, F]
   std::vector<torch::Tensor> parts{feat};
   const SceneEffects& fx = m.opt.effects;
   if (fx.view_dependent || fx.distance_input) {
@@ -902,6 +1027,7 @@ AdjustReport AnchorModel::adjust_anchors(int check_interval, torch::Generator ge
   // gradients for this iteration's step; do the same so results match the reference.
   for (auto& g : m.groups)
     if (g.per_anchor) m.keep_rows(g, keep);
+  if (rep.grown > 0 || rep.pruned > 0) m.links = torch::Tensor();  // indices changed: rebuild
   // 4. HAC quirk: after each prune step the base scales are clamped (log space, <= 0.05).
   m.p(m.i_scaling).index({Slice(), Slice(3, 6)}).clamp_max_(0.05);
   return rep;
@@ -959,6 +1085,7 @@ std::map<std::string, torch::Tensor> AnchorModel::state_dict() const {
   s["stat.anchor_demon"] = m.anchor_demon;
   s["stat.offset_grad_accum"] = m.offset_grad_accum;
   s["stat.offset_denom"] = m.offset_denom;
+  if (m.links.defined()) s["links"] = m.links;
   for (const auto& g : m.groups) {
     s["param." + g.name] = g.param.detach();
     s["adam_m." + g.name] = g.m;
@@ -1002,6 +1129,12 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
   CRPGS_RETURN_IF_ERROR(get("stat.anchor_demon", m.anchor_demon));
   CRPGS_RETURN_IF_ERROR(get("stat.offset_grad_accum", m.offset_grad_accum));
   CRPGS_RETURN_IF_ERROR(get("stat.offset_denom", m.offset_denom));
+  m.links = torch::Tensor();
+  if (s.count("links")) {
+    CRPGS_RETURN_IF_ERROR(get("links", m.links));
+    if (m.links.dim() != 1 || m.links.size(0) != m.anchor.size(0))
+      return Status(StatusCode::kInvalidArgument, "checkpoint links do not match the anchors");
+  }
   for (auto& g : m.groups) {
     torch::Tensor p;
     CRPGS_RETURN_IF_ERROR(get("param." + g.name, p));

@@ -108,6 +108,12 @@ const std::vector<CoreSection>& core_sections() {
            range(P("fast_factor", T::kFloat, YAML::Node(0.1), "scale of the fast schedule"), 0, 1),
            range(P("iterations", T::kInt, YAML::Node(0), ">0: override the schedule's length"), 0,
                  1e8),
+           range(P("full_iterations", T::kInt, YAML::Node(30000),
+                   "length of the full schedule (HAC 30000, CRP-GS 40000); `fast` scales it"),
+                 1, 1e8),
+           P("link_builds", T::kIntList, YAML::Node(std::vector<int>{30000, 33000, 36000}),
+             "iterations of the full schedule at which anchor links are (re)built from scratch "
+             "(only with a `links` component; `fast` scales them)"),
            range(P("seed", T::kInt, YAML::Node(0), "random seed (init, growing, view order)"), 0,
                  1e9),
            range(P("lambda_dssim", T::kFloat, YAML::Node(0.2), "weight of 1 - SSIM"), 0, 1),
@@ -166,6 +172,18 @@ const std::vector<CoreSection>& core_sections() {
            range(
                P("q0_offset", T::kFloat, YAML::Node(0.2), "initial quantisation step Q0, offsets"),
                1e-9, 1e3),
+           range(P("leaf_hidden", T::kInt, YAML::Node(60), "hidden width of the leaf MLP (COHS)"),
+                 1, 4096),
+           range(P("lr_leaf", T::kFloat, YAML::Node(0.005),
+                   "leaf MLP lr, log-linear from the first link build to the end"),
+                 0, 10),
+           range(P("lr_leaf_final", T::kFloat, YAML::Node(0.00005), "final leaf MLP lr"), 0, 10),
+           P("leaf_residual", T::kBool, YAML::Node(false),
+             "leaf mean = base mean + MLP (last layer zero-initialised)"),
+           choice(P("geometry", T::kChoice, YAML::Node("draco"),
+                    "anchor positions in the bitstream: draco (lossless point-cloud codec) or "
+                    "raw (fixed-width voxel integers, HAC's 16 bits per axis)"),
+                  {"draco", "raw"}),
            P("recompute_bounds", T::kBool, YAML::Node(true),
              "recompute the anchor bounds at rate_start (HAC); false keeps the initial ones"),
            range(

@@ -60,8 +60,7 @@ std::string archive_key(const std::string& k) {
   return s;
 }
 
-Schedule scale_schedule(double f) {
-  Schedule s = Schedule::full();
+Schedule scale_schedule(Schedule s, double f) {
   auto sc = [&](int v) { return int(std::lround(v * f)); };
   s.iterations = std::max(1, sc(s.iterations));
   s.start_stat = sc(s.start_stat);
@@ -72,6 +71,8 @@ Schedule scale_schedule(double f) {
   s.pause_until = sc(s.pause_until);
   s.quant_start = sc(s.quant_start);
   s.rate_start = sc(s.rate_start);
+  s.lr_steps = std::max(1, sc(s.lr_steps));
+  for (int& b : s.link_builds) b = sc(b);
   return s;
 }
 
@@ -81,7 +82,10 @@ Schedule Schedule::full() {
   return Schedule{};
 }
 Schedule Schedule::scaled(double factor) {
-  return scale_schedule(factor);
+  return scale_schedule(full(), factor);
+}
+Schedule Schedule::scaled_by(double factor) const {
+  return scale_schedule(*this, factor);
 }
 
 torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b) {
@@ -152,6 +156,10 @@ StatusOr<double> Trainer::step() {
   const bool rate_path = model_->has_rate();
   if (rate_path) {  // method.md §2.3
     if (it == sc.rate_start && model_->rate_options().recompute_bounds) model_->recompute_bounds();
+    const bool build =
+        model_->has_links() &&
+        std::find(sc.link_builds.begin(), sc.link_builds.end(), it) != sc.link_builds.end();
+    if (build) CRPGS_RETURN_IF_ERROR(model_->rebuild_links(options_.seed + uint64_t(it)).status());
     model_->set_quant_phase(it <= sc.quant_start  ? QuantPhase::kRaw
                             : it <= sc.rate_start ? QuantPhase::kFixedNoise
                                                   : QuantPhase::kAdaptiveNoise);
@@ -173,7 +181,10 @@ StatusOr<double> Trainer::step() {
     const RateOptions& ro = model_->rate_options();
     const double denom = double(model_->num_anchors()) *
                          double(model_->features().size(1) + 6 + 3 * model_->n_offsets());
-    auto hash_bits = model_->context()->parameter_bits().to(torch::kFloat);
+    // Every coded grid's bits: the context's and the feature model's (SFA's shared grid).
+    auto hash_bits =
+        (model_->context()->parameter_bits() + model_->feature_model()->parameter_bits())
+            .to(torch::kFloat);
     auto rate = ng.bits_per_param + hash_bits / denom;
     auto mask_loss = model_->mask_loss();
     loss = loss + ro.lambda * rate + ro.mask_lambda * mask_loss;
@@ -184,6 +195,7 @@ StatusOr<double> Trainer::step() {
     last_rate_.mask_loss = mask_loss.item<double>();
     last_rate_.subset = ng.rate_subset;
     last_rate_.active_fraction = model_->active_anchors().to(torch::kDouble).mean().item<double>();
+    if (model_->links().defined()) last_rate_.leaves = (model_->links() >= 0).sum().item<int64_t>();
   }
   auto t3 = Clock::now();
   if (loss.requires_grad()) loss.backward();
@@ -475,7 +487,7 @@ StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved) {
     lr.feature_model_final = get(t, "lr_feature_model_final", lr.feature_model_final);
     auto to = train_options_from_config(resolved);
     if (!to.ok()) return to.status();
-    lr.max_steps = to->schedule.iterations;
+    lr.max_steps = to->schedule.lr_steps;
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("model/scene config: ") + e.what());
   }
@@ -488,12 +500,15 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
     const YAML::Node t = resolved.section("train");
     const std::string schedule = get<std::string>(t, "schedule", "full");
     const double factor = get(t, "fast_factor", 0.1);
+    Schedule full = Schedule::full();
+    full.iterations = get(t, "full_iterations", full.iterations);
+    if (t && t["link_builds"]) full.link_builds = t["link_builds"].as<std::vector<int>>();
     if (schedule == "fast") {
       if (!(factor > 0 && factor <= 1))
         return Status(StatusCode::kInvalidConfig, "train.fast_factor must be in (0, 1]");
-      o.schedule = Schedule::scaled(factor);
+      o.schedule = full.scaled_by(factor);
     } else if (schedule == "full") {
-      o.schedule = Schedule::full();
+      o.schedule = full;
     } else {
       return Status(StatusCode::kInvalidConfig,
                     "train.schedule: unknown '" + schedule + "' (available: full, fast)");
@@ -523,6 +538,7 @@ StatusOr<RateOptions> rate_options_from_config(const Config& resolved) {
     o.q0.scaling = get(r, "q0_scaling", o.q0.scaling);
     o.q0.offset = get(r, "q0_offset", o.q0.offset);
     o.recompute_bounds = get(r, "recompute_bounds", o.recompute_bounds);
+    o.geometry = get<std::string>(r, "geometry", o.geometry);
     o.lr_context_init = get(r, "lr_context", o.lr_context_init);
     o.lr_context_final = get(r, "lr_context_final", o.lr_context_final);
     o.lr_context_mlp_init = get(r, "lr_context_mlp", o.lr_context_mlp_init);
@@ -532,6 +548,25 @@ StatusOr<RateOptions> rate_options_from_config(const Config& resolved) {
   }
   if (!(o.subset > 0 && o.subset <= 1))
     return Status(StatusCode::kInvalidConfig, "rate.subset must be in (0, 1]");
+  return o;
+}
+
+StatusOr<LinkOptions> link_options_from_config(const Config& resolved, const Schedule& schedule) {
+  LinkOptions o;
+  try {
+    const YAML::Node r = resolved.section("rate");
+    o.leaf_hidden = get(r, "leaf_hidden", o.leaf_hidden);
+    o.lr_leaf_init = get(r, "lr_leaf", o.lr_leaf_init);
+    o.lr_leaf_final = get(r, "lr_leaf_final", o.lr_leaf_final);
+    o.residual = get(r, "leaf_residual", o.residual);
+  } catch (const YAML::Exception& e) {
+    return Status(StatusCode::kInvalidConfig, std::string("rate config: ") + e.what());
+  }
+  if (schedule.link_builds.empty())
+    return Status(StatusCode::kInvalidConfig,
+                  "train.link_builds: a `links` component needs at least one build iteration");
+  o.lr_start = *std::min_element(schedule.link_builds.begin(), schedule.link_builds.end());
+  o.lr_end = std::max(o.lr_start + 1, schedule.iterations);
   return o;
 }
 
@@ -558,6 +593,7 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
   if (!model.ok()) return model.status();
   if (rate.context || rate.entropy)
     CRPGS_RETURN_IF_ERROR((*model)->attach_rate(rate.context, rate.entropy, rate.options));
+  if (rate.links) CRPGS_RETURN_IF_ERROR((*model)->attach_links(rate.links, rate.link_options, gen));
   return std::make_unique<Trainer>(train_options, std::move(dataset), std::move(rasterizer),
                                    std::move(model).value(), gen);
 }
@@ -603,6 +639,14 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
       CRPGS_ASSIGN_OR_RETURN(rate.context, create_component<ContextModel>(registry, c, args));
       CRPGS_ASSIGN_OR_RETURN(rate.entropy, create_component<EntropyModel>(registry, e, args));
       CRPGS_ASSIGN_OR_RETURN(rate.options, rate_options_from_config(resolved));
+      if (const YAML::Node l = resolved.section("links")) {
+        CRPGS_ASSIGN_OR_RETURN(rate.links, create_component<ContextModel>(registry, l, args));
+        CRPGS_ASSIGN_OR_RETURN(rate.link_options,
+                               link_options_from_config(resolved, train_options.schedule));
+      }
+    } else if (resolved.section("links")) {
+      return Status(StatusCode::kInvalidConfig,
+                    "a `links` component needs the rate path (`context` and `entropy`)");
     }
   }
   // 4. Dataset: a real one from disk, or the built-in synthetic scene.

@@ -39,6 +39,16 @@ StatusOr<Bytes> encode_positions(const std::vector<Voxel>& points);
 /// malformed header, a CRC mismatch, a Draco failure, a wrong point count or duplicates.
 StatusOr<std::vector<Voxel>> decode_positions(ByteSpan bytes);
 
+/// Lossless without a point-cloud codec (the ablation "no anchor-position coding"): the voxels,
+/// already in canonical Morton order, minus the per-axis minimum, stored raw with one fixed
+/// width w for every coordinate (16 bits per axis for a scene under 65536 voxels across, as
+/// HAC's raw positions). Layout: u8 format (1) | varint n | i32 min x, y, z | u8 w | packed bits.
+/// Refuses duplicates or points not in Morton order (kInvalidArgument).
+StatusOr<Bytes> encode_voxels_raw(const std::vector<Voxel>& points);
+/// kCorruptBitstream on a bad header or width, a wrong byte count, or points that are not
+/// strictly increasing in Morton order.
+StatusOr<std::vector<Voxel>> decode_voxels_raw(ByteSpan bytes);
+
 /// HAC's fallback (method.md §7.1): each coordinate quantised uniformly to 16 bits inside the
 /// bounds [lo, hi] and stored raw (N * 3 * 16 bits). Lossy: the error is up to half a step,
 /// (hi - lo) / 65535 / 2 per axis; positions outside the bounds are clamped. The input order is

@@ -1,0 +1,281 @@
+// CRP-GS links in the rate path (method.md §6.2-§6.4, §7.6-§7.13): links built on the schedule,
+// the leaf model and its fallback, sanitising at encode time, and a bitstream with links that
+// decodes (another thread count) to exactly the training-side quantised model.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <filesystem>
+
+#include "crpgs/codec.h"
+#include "crpgs/components.h"
+#include "crpgs/scene_generator.h"
+#include "crpgs/trainer.h"
+#include "raster/cpu_rasterizer.h"
+#include "train/rate_test_util.h"
+
+namespace crpgs {
+namespace {
+
+/// Pairs consecutive active anchors (2j -> 2j+1 in active order): a deterministic strategy that
+/// does not depend on the link plugins. `chain` makes a root a leaf too (must be refused).
+class PairLinks final : public ContextModel {
+ public:
+  explicit PairLinks(bool chain = false) : chain_(chain) {}
+  std::string type_name() const override { return "pair_test"; }
+  YAML::Node hyperparams() const override { return YAML::Node(); }
+  torch::Tensor build_links(const LinkInputs& in) override {
+    auto links = torch::full({in.features.size(0)}, -1, torch::kLong);
+    auto act = in.active.nonzero().view(-1);
+    for (int64_t j = 0; j + 1 < act.size(0); j += 2)
+      links[act[j + 1].item<int64_t>()] = act[j].item<int64_t>();
+    if (chain_ && act.size(0) >= 3) links[act[0].item<int64_t>()] = act[2].item<int64_t>();
+    return links;
+  }
+
+ private:
+  bool chain_;
+};
+
+Dataset tiny_scene() {
+  raster::CpuRasterizer r(1);
+  SyntheticSceneOptions o;
+  o.width = 32;
+  o.height = 24;
+  o.views = 8;
+  o.sfm_points = 1500;
+  auto s = generate_scene(o, r);
+  if (!s.ok()) throw StatusError(s.status());
+  return std::move(s).value();
+}
+
+// Noise from 10, rate from 22, growth stops at 20, links built at 24 and 27.
+std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<ContextModel> links) {
+  at::set_num_threads(1);
+  torch::manual_seed(1);
+  TrainOptions to;
+  to.schedule = Schedule::scaled(0.01);
+  to.schedule.iterations = 30;
+  to.schedule.update_interval = 5;
+  to.schedule.update_until = 20;
+  to.schedule.quant_start = 10;
+  to.schedule.rate_start = 22;
+  to.schedule.link_builds = {24, 27};
+  to.eval_interval = 0;
+  to.seed = 3;
+  AnchorModelOptions mo;
+  mo.voxel_size = 0.08;
+  mo.lr.max_steps = 30;
+  RateSetup rs = test::make_rate_setup(50, 10, RateOptions());
+  rs.links = std::move(links);
+  rs.link_options.lr_start = 24;
+  rs.link_options.lr_end = 30;
+  auto t = make_trainer(to, mo, ds, std::make_shared<raster::CpuRasterizer>(1),
+                        identity_feature_model(50), rs);
+  if (!t.ok()) throw StatusError(t.status());
+  return std::move(t).value();
+}
+
+#define SKIP_WITHOUT_PLUGINS()                            \
+  do {                                                    \
+    const std::string why = test::rate_plugins_missing(); \
+    if (!why.empty()) GTEST_SKIP() << why;                \
+  } while (0)
+
+TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = links_trainer(ds, std::make_shared<PairLinks>());
+  ASSERT_TRUE(t->model().has_links());
+  for (int it = 1; it <= 30; ++it) {
+    ASSERT_TRUE(t->step().ok()) << "iteration " << it;
+    if (it < 24) {
+      EXPECT_FALSE(t->model().links().defined()) << "iteration " << it;
+      EXPECT_EQ(t->last_rate().leaves, 0);
+    }
+  }
+  ASSERT_TRUE(t->model().links().defined());
+  EXPECT_GT(t->last_rate().leaves, 0);
+  EXPECT_GT(t->model().learning_rate("leaf_mlp"), 0);
+  EXPECT_EQ(t->model().mlp_tensors().count("leaf_mlp.w1"), 1u);
+
+  QuantizedAttributes q;
+  auto coded = coded_model_from(t->model(), &q);
+  ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+  ASSERT_TRUE(coded->links.defined());
+  const LinkCounts lc = count_links(coded->links);
+  EXPECT_GT(lc.leaves, 0);
+  EXPECT_EQ(lc.roots, lc.leaves);  // one-to-one
+  EXPECT_EQ(lc.roots + lc.leaves + lc.free, coded->voxels.size(0));
+  EXPECT_EQ(coded->anchor_mask.sum().item<int64_t>(), coded->voxels.size(0));
+
+  auto cfg = Config::from_string(
+      "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+      "entropy: {type: gaussian}\nmodel: {feature_dim: 50, n_offsets: 10}\n",
+      "links_test.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto resolved = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  auto enc = encode_model(coded.value(), resolved.value(), codec_components_of(t->model()));
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  bool has_link = false, has_amsk = false;
+  for (const auto& s : enc->sections) {
+    has_link |= s.id == "LINK";
+    has_amsk |= s.id == "AMSK";
+  }
+  EXPECT_TRUE(has_link && has_amsk);
+
+  at::set_num_threads(2);  // a different thread count than the encoder's
+  auto dec = decode_model(enc->bytes, test::rate_registry());
+  at::set_num_threads(1);
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_TRUE(torch::equal(dec->model.links, coded->links));
+  EXPECT_TRUE(torch::equal(dec->model.feature_sym, coded->feature_sym));
+  EXPECT_TRUE(torch::equal(dec->model.scaling_sym, coded->scaling_sym));
+  EXPECT_TRUE(torch::equal(dec->model.offset_sym, coded->offset_sym));
+  EXPECT_TRUE(torch::equal(dec->params.q_f, q.params.q_f));
+  // The leaves were coded with the leaf model's means, not the base model's.
+  const auto leaves = (coded->links >= 0).nonzero().view(-1);
+  EXPECT_TRUE(torch::equal(dec->params.mu_f,
+                           coded_entropy_params(coded.value(), *t->model().context(), 50).mu_f));
+  EXPECT_FALSE(torch::equal(dec->params.mu_f.index_select(0, leaves),
+                            q.params.mu_f.index_select(0, leaves)));
+  const auto free_rows = (coded->links < 0).nonzero().view(-1);
+  EXPECT_TRUE(torch::equal(dec->params.mu_f.index_select(0, free_rows),
+                           q.params.mu_f.index_select(0, free_rows)));
+
+  auto decoded = model_from_decoded(dec.value(), t->model().options());
+  ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
+  raster::CpuRasterizer r(1);
+  RenderSettings rs;
+  const Camera& cam = ds.test.at(0).camera;
+  torch::NoGradGuard ng;
+  t->model().set_quantized(q);
+  auto a = t->model().generate(cam, -1, r, rs, false);
+  auto img_a = r.render(a.batch, cam, rs).image;
+  t->model().clear_quantized();
+  auto b = decoded.value()->generate(cam, -1, r, rs, false);
+  auto img_b = r.render(b.batch, cam, rs).image;
+  EXPECT_GT(a.batch.means.size(0), 0);
+  EXPECT_TRUE(torch::equal(img_a, img_b));
+}
+
+TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = links_trainer(ds, std::make_shared<PairLinks>());
+  AnchorModel& m = t->model();
+  ASSERT_TRUE(m.rebuild_links(0).ok());
+  const auto links = m.links();
+  const auto leaves = (links >= 0).nonzero().view(-1);
+  ASSERT_GE(leaves.size(0), 2);
+  const int64_t leaf0 = leaves[0].item<int64_t>(), leaf1 = leaves[1].item<int64_t>();
+  const int64_t root0 = links[leaf0].item<int64_t>();
+  const auto rows = torch::tensor({leaf0, leaf1});
+  const auto base = torch::zeros({2, 50});
+  {
+    torch::NoGradGuard ng;
+    auto mu = m.feature_means(rows, base);
+    EXPECT_GT(mu[0].abs().sum().item<double>(), 0) << "an active root: the leaf model";
+    m.mask_logits()[root0].fill_(-20.f);  // root 0 becomes inactive
+    mu = m.feature_means(rows, base);
+    EXPECT_TRUE(torch::equal(mu[0], base[0])) << "inactive root: the base model";
+    EXPECT_GT(mu[1].abs().sum().item<double>(), 0);
+  }
+  // Encoding drops the link of the now inactive root (method.md §7.10).
+  auto coded = coded_model_from(m);
+  ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+  EXPECT_EQ(count_links(coded->links).leaves, leaves.size(0) - 1);
+  // A rebuild follows the masks: no link touches the inactive anchor.
+  ASSERT_TRUE(m.rebuild_links(1).ok());
+  EXPECT_EQ(m.links()[root0].item<int64_t>(), -1);
+  EXPECT_FALSE((m.links() == root0).any().item<bool>());
+}
+
+TEST(LinksTraining, ChainsAndBadShapesAreRefused) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = links_trainer(ds, std::make_shared<PairLinks>(/*chain=*/true));
+  auto st = t->model().rebuild_links(0);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.status().message().find("one-hop"), std::string::npos) << st.status().message();
+  EXPECT_FALSE(t->model().links().defined());
+  // Links without the rate path are refused.
+  auto plain = make_trainer(TrainOptions(), AnchorModelOptions(), ds,
+                            std::make_shared<raster::CpuRasterizer>(1), identity_feature_model(50));
+  ASSERT_TRUE(plain.ok());
+  EXPECT_FALSE(
+      plain.value()->model().attach_links(std::make_shared<PairLinks>(), LinkOptions(), {}).ok());
+}
+
+TEST(LinksTraining, CheckpointKeepsTheLinks) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = tiny_scene();
+  auto t = links_trainer(ds, std::make_shared<PairLinks>());
+  ASSERT_TRUE(t->model().rebuild_links(0).ok());
+  const auto state = t->model().state_dict();
+  auto u = links_trainer(ds, std::make_shared<PairLinks>());
+  ASSERT_TRUE(u->model().load_state_dict(state).ok());
+  ASSERT_TRUE(u->model().links().defined());
+  EXPECT_TRUE(torch::equal(u->model().links(), t->model().links()));
+}
+
+}  // namespace
+}  // namespace crpgs
+
+namespace crpgs {
+namespace {
+
+// Every shipped config validates against the schemas of the built components, and the CRP-GS
+// configs say what method.md §6-§7 prescribes.
+TEST(ShippedConfigs, ResolveAndFollowTheMethod) {
+  const auto& reg = test::rate_registry();
+  for (const char* type : {"link_cohs", "link_random", "link_distance", "link_none"})
+    if (!reg.find(CRPGS_KIND_CONTEXT, type))
+      GTEST_SKIP() << "link plugin '" << type << "' is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  if (!reg.find(CRPGS_KIND_FEATURES, "sfa"))
+    GTEST_SKIP() << "the sfa plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = std::string(CRPGS_SOURCE_DIR) + "/configs";
+  int checked = 0;
+  for (const char* dir : {"", "/ablations"}) {
+    for (const auto& e : std::filesystem::directory_iterator(root + dir)) {
+      if (e.path().extension() != ".yaml") continue;
+      auto cfg = Config::load_file(e.path().string());
+      ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+      auto r = cfg->resolve(reg);
+      ASSERT_TRUE(r.ok()) << r.status().to_string();
+      ASSERT_TRUE(train_options_from_config(r.value()).ok()) << e.path();
+      ASSERT_TRUE(rate_options_from_config(r.value()).ok()) << e.path();
+      ++checked;
+    }
+  }
+  EXPECT_GE(checked, 15);
+  auto cfg = Config::load_file(root + "/crpgs.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto r = cfg->resolve(reg);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->section("links")["type"].as<std::string>(), "link_cohs");
+  EXPECT_EQ(r->section("features")["type"].as<std::string>(), "sfa");
+  EXPECT_DOUBLE_EQ(r->section("features")["ratio"].as<double>(), 0.4);
+  auto to = train_options_from_config(r.value());
+  ASSERT_TRUE(to.ok());
+  EXPECT_EQ(to->schedule.iterations, 40000);
+  EXPECT_EQ(to->schedule.lr_steps, 30000);  // HAC's schedules, clamped after 30k (§7.7)
+  EXPECT_EQ(to->schedule.link_builds, (std::vector<int>{30000, 33000, 36000}));
+  auto lo = link_options_from_config(r.value(), to->schedule);
+  ASSERT_TRUE(lo.ok());
+  EXPECT_EQ(lo->lr_start, 30000);
+  EXPECT_EQ(lo->lr_end, 40000);
+  EXPECT_EQ(lo->leaf_hidden, 60);
+  EXPECT_FALSE(rate_options_from_config(r.value())->recompute_bounds);
+  // The fast schedule scales the link builds with everything else.
+  ASSERT_TRUE(cfg->apply_override("train.schedule=fast").ok());
+  auto fast = train_options_from_config(cfg->resolve(reg).value());
+  ASSERT_TRUE(fast.ok());
+  EXPECT_EQ(fast->schedule.iterations, 4000);
+  EXPECT_EQ(fast->schedule.link_builds, (std::vector<int>{3000, 3300, 3600}));
+}
+
+}  // namespace
+}  // namespace crpgs
