@@ -67,5 +67,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g);
 void add_codec_commands(CLI::App& app, GlobalOptions& g);
 void add_sweep_commands(CLI::App& app, GlobalOptions& g);   // cmd_sweep.cpp
 void add_report_commands(CLI::App& app, GlobalOptions& g);  // cmd_report.cpp
+void add_render_commands(CLI::App& app, GlobalOptions& g);  // cmd_render.cpp: decode, render
+void add_export_commands(CLI::App& app, GlobalOptions& g);  // cmd_export.cpp: .ply export, import
 
 }  // namespace crpgs::cli

@@ -24,8 +24,10 @@ int main(int argc, char** argv) {
   add_config_commands(app, g);
   add_train_commands(app, g);
   add_codec_commands(app, g);
+  add_render_commands(app, g);
   add_sweep_commands(app, g);
   add_report_commands(app, g);
+  add_export_commands(app, g);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,335 @@
+/// @file cmd_render.cpp
+/// @brief `crpgs decode` (bitstream -> render-ready model directory) and `crpgs render` (one PNG
+/// per view from a bitstream, a decode directory or a training run).
+#include <ATen/Parallel.h>
+#include <torch/serialize/input-archive.h>
+#include <torch/serialize/output-archive.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <sstream>
+#include <thread>
+
+#include "cli_common.h"
+#include "crpgs/atomic_file.h"
+#include "crpgs/image.h"
+#include "crpgs/metrics.h"
+
+namespace crpgs::cli {
+namespace {
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+constexpr const char* kDecodedFile = "decoded.pt";
+constexpr int64_t kDecodedFormat = 1;  // bump when the key set below changes meaning
+
+int effective_threads(int requested) {
+  return requested > 0 ? requested : std::max(1, int(std::thread::hardware_concurrency()));
+}
+
+torch::Tensor bytes_tensor(const std::string& s) {  // [len] uint8
+  auto t = torch::empty({int64_t(s.size())}, torch::kUInt8);
+  if (!s.empty()) std::memcpy(t.data_ptr<uint8_t>(), s.data(), s.size());
+  return t;
+}
+
+std::string tensor_bytes(const torch::Tensor& t) {
+  const auto c = t.to(torch::kUInt8).contiguous();
+  return std::string(reinterpret_cast<const char*>(c.data_ptr<uint8_t>()), size_t(c.numel()));
+}
+
+/// Writes the decoded model as a torch archive: the integer symbols exactly as decoded, the
+/// dequantised attributes a renderer needs (symbol x step, as model_from_decoded computes them),
+/// the MLPs and the feature model's state. Keys have no '.', which the archive treats as nesting.
+Status write_decoded(const std::string& path, const DecodeResult& d) {
+  const CodedModel& m = d.model;
+  const EntropyParams& p = d.params;
+  const int64_t n = m.voxels.size(0);
+  try {
+    torch::serialize::OutputArchive ar;
+    ar.write("format_version", torch::tensor(kDecodedFormat, torch::kLong));
+    ar.write("voxel_size", torch::tensor(m.voxel_size, torch::kDouble));
+    ar.write("bounds", m.bounds);                             // [2, 3]
+    ar.write("chunk", torch::tensor(m.chunk, torch::kLong));  // anchors per coded chunk
+    ar.write("q0", torch::tensor({m.q0.feature, m.q0.scaling, m.q0.offset}, torch::kDouble));
+    ar.write("voxels", m.voxels);                                    // [N, 3] int32
+    ar.write("offset_masks", m.offset_masks);                        // [N, K] bool
+    ar.write("feature_symbols", m.feature_sym);                      // [N, Dc] int32
+    ar.write("scaling_symbols", m.scaling_sym);                      // [N, 6] int32
+    ar.write("offset_symbols", m.offset_sym);                        // [N, K, 3] int32
+    ar.write("q_f", p.q_f);                                          // [N, 1] steps
+    ar.write("q_s", p.q_s);                                          // [N, 1]
+    ar.write("q_o", p.q_o);                                          // [N, 1]
+    ar.write("positions", voxel_positions(m.voxels, m.voxel_size));  // [N, 3] float32
+    ar.write("features", m.feature_sym.to(torch::kFloat) * p.q_f);   // [N, Dc]
+    ar.write("scaling", m.scaling_sym.to(torch::kFloat) * p.q_s);    // [N, 6] activated
+    ar.write("offsets", m.offset_sym.to(torch::kFloat) * p.q_o.view({n, 1, 1}));  // [N, K, 3]
+    std::string names;
+    int64_t i = 0;
+    for (const auto& [name, t] : m.mlps) {
+      names += name + "\n";
+      ar.write("mlp_" + std::to_string(i++), t);
+    }
+    ar.write("mlp_names", bytes_tensor(names));
+    const auto st = d.components.features->save_state();
+    ar.write("features_state", bytes_tensor(std::string(st.begin(), st.end())));
+    std::ostringstream os;
+    ar.save_to(os);
+    return write_file_atomic(path, os.str());
+  } catch (const std::exception& e) {
+    return Status(StatusCode::kIoError, "writing " + path + ": " + e.what());
+  }
+}
+
+int decode_command(const GlobalOptions& g, const std::string& path, const std::string& out_dir,
+                   int threads) {
+  ComponentRegistry r = load_registry(g);
+  at::set_num_threads(effective_threads(threads));
+  auto t0 = Clock::now();
+  auto bytes = read_file_bytes(path);
+  if (!bytes.ok()) return report_error(bytes.status());
+  auto dec = decode_model(bytes.value(), r);
+  if (!dec.ok()) return report_error(dec.status());
+  const double decode_s = seconds_since(t0);
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
+  const std::string config_path = (fs::path(out_dir) / "config.yaml").string();
+  const std::string model_path = (fs::path(out_dir) / kDecodedFile).string();
+  t0 = Clock::now();
+  Status st = dec->config.save(config_path);
+  if (st.ok()) st = write_decoded(model_path, dec.value());
+  if (!st.ok()) return report_error(st);
+  const double write_s = seconds_since(t0);
+  const auto& m = dec->model;
+  std::printf(
+      "%s: %zu bytes, decoded in %.3f s (%d threads): %lld anchors, %lld offsets each "
+      "(%lld active), feature width %lld, voxel %.6g\n",
+      path.c_str(), bytes->size(), decode_s, at::get_num_threads(),
+      static_cast<long long>(m.voxels.size(0)), static_cast<long long>(m.offset_masks.size(1)),
+      static_cast<long long>(m.offset_masks.sum().item<int64_t>()),
+      static_cast<long long>(m.feature_sym.size(1)), m.voxel_size);
+  std::printf("wrote %s (the bitstream's resolved config)\n", config_path.c_str());
+  std::printf("wrote %s (%llu bytes, %.3f s): symbols, dequantised attributes, masks, MLPs\n",
+              model_path.c_str(), static_cast<unsigned long long>(fs::file_size(model_path, ec)),
+              write_s);
+  return 0;
+}
+
+/// A model ready to render with the dataset and rasterizer its config names.
+struct RenderSource {
+  std::string kind;                      ///< "bitstream", "decoded", "run"
+  std::unique_ptr<Trainer> setup;        ///< dataset, rasterizer; the model of a run
+  std::unique_ptr<AnchorModel> decoded;  ///< null for a run
+  double load_seconds = 0;
+  AnchorModel& model() { return decoded ? *decoded : setup->model(); }
+};
+
+/// Applies --set, the thread count, and re-resolves (a copy: YAML nodes are shared).
+StatusOr<Config> render_config(const Config& resolved, const GlobalOptions& g,
+                               const ComponentRegistry& r, int threads) {
+  CRPGS_ASSIGN_OR_RETURN(Config c, Config::from_string(resolved.dump(), "<model config>"));
+  CRPGS_RETURN_IF_ERROR(c.apply_override("train.threads=" + std::to_string(threads)));
+  const YAML::Node rast = c.section("rasterizer");
+  if (!rast || (rast.IsMap() && rast["threads"]))
+    CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.threads=" + std::to_string(threads)));
+  if (!rast) CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.type=cpu"));
+  for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(c.apply_override(s));
+  return c.resolve(r);
+}
+
+/// Rendering needs the cameras (and ground truth) of the dataset the model was trained on.
+Status check_dataset(const Config& c) {
+  const YAML::Node ds = c.section("dataset");
+  if (!ds || !ds.IsMap()) return OkStatus();
+  const std::string format = ds["format"] ? ds["format"].as<std::string>() : "auto";
+  const std::string path = ds["path"] ? ds["path"].as<std::string>() : "";
+  if (format == "synthetic" || path.empty() || fs::exists(path)) return OkStatus();
+  return Status(StatusCode::kNotFound,
+                "the dataset this model was trained on is absent: " + path +
+                    " (dataset.path of its config); rendering needs its cameras. Point to a copy "
+                    "with --set dataset.path=DIR");
+}
+
+StatusOr<std::unique_ptr<AnchorModel>> read_decoded(const std::string& path, const Config& cfg,
+                                                    const ComponentRegistry& r) {
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
+  try {
+    torch::serialize::InputArchive ar;
+    ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+    auto get = [&](const char* key) {
+      torch::Tensor t;  // read() into a defined tensor would resize it in place
+      ar.read(key, t);
+      return t;
+    };
+    if (get("format_version").item<int64_t>() != kDecodedFormat)
+      return Status(StatusCode::kUnsupportedVersion, path + ": unknown decoded-model version");
+    std::map<std::string, torch::Tensor> mlps;
+    std::istringstream names(tensor_bytes(get("mlp_names")));
+    std::string name;
+    for (int64_t i = 0; std::getline(names, name); ++i)
+      mlps[name] = get(("mlp_" + std::to_string(i)).c_str());
+    crpgs_create_args args = create_args_for(cfg);
+    CRPGS_ASSIGN_OR_RETURN(std::shared_ptr<FeatureModel> features,
+                           create_component<FeatureModel>(r, cfg.section("features"), args));
+    const std::string state = tensor_bytes(get("features_state"));
+    std::string err;
+    if (!state.empty() &&
+        !features->load_state(std::vector<uint8_t>(state.begin(), state.end()), &err))
+      return Status(StatusCode::kCorruptBitstream, path + ": feature model state: " + err);
+    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
+    return AnchorModel::from_decoded(options, features, get("positions"), get("features"),
+                                     get("scaling"), get("offsets"), get("offset_masks"), mlps,
+                                     get("bounds"), get("voxel_size").item<double>());
+  } catch (const std::exception& e) {
+    return Status(StatusCode::kCorruptBitstream, "reading " + path + ": " + e.what());
+  }
+}
+
+StatusOr<RenderSource> load_render_source(const GlobalOptions& g, const ComponentRegistry& r,
+                                          const std::string& source, int threads) {
+  RenderSource s;
+  at::set_num_threads(threads);
+  const auto t0 = Clock::now();
+  Config model_config;
+  if (fs::is_regular_file(source)) {
+    s.kind = "bitstream";
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
+    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
+    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(dec.config));
+    CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
+    model_config = dec.config;
+  } else if (fs::is_regular_file(fs::path(source) / kDecodedFile)) {
+    s.kind = "decoded";
+    CRPGS_ASSIGN_OR_RETURN(
+        model_config, load_config((fs::path(source) / "config.yaml").string(), GlobalOptions{}, r));
+    CRPGS_ASSIGN_OR_RETURN(
+        s.decoded, read_decoded((fs::path(source) / kDecodedFile).string(), model_config, r));
+  } else if (fs::is_regular_file(fs::path(source) / "config.yaml")) {
+    s.kind = "run";
+    CRPGS_ASSIGN_OR_RETURN(
+        model_config, load_config((fs::path(source) / "config.yaml").string(), GlobalOptions{}, r));
+  } else {
+    return Status(StatusCode::kNotFound,
+                  source + " is neither a .crpgs file, a `crpgs decode` directory (" +
+                      kDecodedFile + ") nor a training run directory (config.yaml)");
+  }
+  s.load_seconds = seconds_since(t0);
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, render_config(model_config, g, r, threads));
+  CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
+  const bool run = s.kind == "run";
+  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{run ? source : "", run}));
+  if (run && s.setup->iteration() == 0)
+    return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
+  return s;
+}
+
+Image to_image(const torch::Tensor& img) {  // [H, W, C] float
+  const auto t = img.detach().to(torch::kFloat).contiguous();
+  Image im = Image::zeros(int(t.size(1)), int(t.size(0)), int(t.size(2)));
+  std::memcpy(im.pixels.data(), t.data_ptr<float>(), im.pixels.size() * sizeof(float));
+  return im;
+}
+
+int render_command(const GlobalOptions& g, const std::string& source, const std::string& out_dir,
+                   const std::string& which, int requested_threads) {
+  const int threads = effective_threads(requested_threads);
+  ComponentRegistry r = load_registry(g);
+  auto src = load_render_source(g, r, source, threads);
+  if (!src.ok()) return report_error(src.status());
+  AnchorModel& model = src->model();
+  const Dataset& ds = src->setup->dataset();
+  std::vector<std::pair<std::string, const std::vector<View>*>> splits;
+  if (which != "test") splits.push_back({"train", &ds.train});
+  if (which != "train") splits.push_back({"test", &ds.test});
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
+  torch::NoGradGuard no_grad;
+  // A run with the rate path renders its quantised model: the bitstream's rows in its canonical
+  // order, so the pixels equal those of the decoded file (Gaussian order changes blending sums).
+  if (src->kind == "run" && model.has_rate()) {
+    QuantizedAttributes q;
+    auto coded = coded_model_from(model, &q);
+    if (!coded.ok()) return report_error(coded.status());
+    model.set_quantized(q);
+  }
+  std::printf("%s (%s, %s in %.2f s): %lld anchors; rendering with %d threads\n", source.c_str(),
+              src->kind.c_str(), src->kind == "run" ? "loaded" : "decoded", src->load_seconds,
+              static_cast<long long>(src->kind == "run" ? model.num_anchors()
+                                                        : src->decoded->num_anchors()),
+              threads);
+  RenderSettings settings;
+  settings.background = model.options().effects.background;
+  std::vector<std::vector<std::string>> rows = {{"VIEW", "CAMERA", "RENDER (ms)", "PSNR (dB)"}};
+  double total_s = 0;
+  size_t count = 0;
+  char ms[32], db[32], name[64];
+  for (const auto& [split, views] : splits) {
+    for (size_t i = 0; i < views->size(); ++i) {
+      const View& v = (*views)[i];
+      const auto t0 = Clock::now();
+      NeuralGaussians ng = model.generate(v.camera, -1, src->setup->rasterizer(), settings, false);
+      auto img = src->setup->rasterizer().render(ng.batch, v.camera, settings).image;
+      const double s = seconds_since(t0);
+      total_s += s;
+      ++count;
+      const Image render = quantize_8bit(to_image(img));
+      std::snprintf(name, sizeof name, "%s_%05zu.png", split.c_str(), i);
+      Status st = save_png(render, (fs::path(out_dir) / name).string());
+      if (!st.ok()) return report_error(st);
+      auto p = psnr(render, quantize_8bit(v.image));  // the 8-bit round trip, as `crpgs eval`
+      std::snprintf(ms, sizeof ms, "%.1f", s * 1e3);
+      std::snprintf(db, sizeof db, "%.3f", p.ok() ? p.value() : 0.0);
+      rows.push_back({name, v.camera.name, ms, p.ok() ? db : "-"});
+    }
+  }
+  if (count == 0)
+    return report_error(Status(StatusCode::kInvalidArgument, "no " + which + " views to render"));
+  print_table(rows);
+  std::printf("%zu PNGs in %s; render %.1f ms/view (generate + rasterize)\n", count,
+              out_dir.c_str(), total_s * 1e3 / double(count));
+  return 0;
+}
+
+}  // namespace
+
+void add_render_commands(CLI::App& app, GlobalOptions& g) {
+  static std::string path, out_dir, source, views = "test";
+  static int decode_threads = 0, render_threads = 0;
+
+  auto* dec = app.add_subcommand(
+      "decode",
+      "Decode a .crpgs bitstream into a directory holding the render-ready model: config.yaml "
+      "(the bitstream's resolved config) and decoded.pt (a torch archive: decoded integer "
+      "symbols, dequantised features/scaling/offsets, masks, MLPs, bounds, voxel size)");
+  dec->add_option("FILE", path, "bitstream")->required();
+  dec->add_option("-o,--output", out_dir, "output directory")->required();
+  dec->add_option("--threads", decode_threads, "CPU threads; 0 = all cores")
+      ->check(CLI::NonNegativeNumber);
+  dec->callback(
+      [&g] { throw CLI::RuntimeError(decode_command(g, path, out_dir, decode_threads)); });
+
+  auto* ren = app.add_subcommand(
+      "render",
+      "Render one PNG per view of a model: a .crpgs file, a `crpgs decode` directory or a "
+      "training run directory (its quantised model when it has the rate path), on the cameras of "
+      "the dataset its config names");
+  ren->add_option("SOURCE", source, ".crpgs file, decode directory or run directory")->required();
+  ren->add_option("-o,--output", out_dir, "where the PNGs go")->required();
+  ren->add_option("--views", views, "which views: test, train or all")
+      ->check(CLI::IsMember({"test", "train", "all"}));
+  ren->add_option("--threads", render_threads, "CPU threads; 0 = all cores")
+      ->check(CLI::NonNegativeNumber);
+  ren->add_option("--set", g.sets,
+                  "override a key of the model's config, e.g. --set dataset.path=DIR");
+  ren->callback(
+      [&g] { throw CLI::RuntimeError(render_command(g, source, out_dir, views, render_threads)); });
+}
+
+}  // namespace crpgs::cli

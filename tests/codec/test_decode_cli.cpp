@@ -1,0 +1,184 @@
+/// @file test_decode_cli.cpp
+/// @brief `crpgs decode` and `crpgs render` in fresh processes: a small trained model is encoded
+/// here; two processes with 1 and 2 threads decode it to identical symbols (equal to the
+/// encoder's) and identical dequantised tensors; renders of the bitstream, of the decode directory
+/// and of the training run's quantised model are pixel-identical.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <torch/serialize/input-archive.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "crpgs/atomic_file.h"
+#include "crpgs/codec.h"
+#include "crpgs/image.h"
+#include "crpgs/trainer.h"
+#include "test_registry.h"
+
+namespace crpgs {
+namespace {
+namespace fs = std::filesystem;
+
+// A small synthetic scene and a small context grid; the fast schedule at 1/1000 passes through
+// every phase (growing from 2, noise from 3, rate and masks from 11) in 12 iterations. One thread:
+// on a loaded 2-core machine, spinning OpenMP workers make 2 threads many times slower.
+const char* kConfig = R"yaml(
+dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
+          synthetic_points: 1000}
+context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
+          n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
+entropy: {type: gaussian}
+rate: {lambda: 0.002}
+rasterizer: {type: cpu, threads: 1}
+train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
+        checkpoint_interval: 0, threads: 1}
+)yaml";
+
+/// Runs the CLI; returns its exit code, its output in *log.
+int run_cli(const std::string& args, const fs::path& log_path, std::string* log) {
+#ifdef CRPGS_CLI_PATH
+  const std::string cmd =
+      std::string("'") + CRPGS_CLI_PATH + "' " + args + " > '" + log_path.string() + "' 2>&1";
+  const int rc = std::system(cmd.c_str());
+  std::ifstream in(log_path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  *log = "$ crpgs " + args + "\n" + ss.str();
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+#else
+  (void)args, (void)log_path, (void)log;
+  return -1;
+#endif
+}
+
+std::map<std::string, torch::Tensor> read_archive(const fs::path& path) {
+  auto bytes = read_file_bytes(path.string());
+  EXPECT_TRUE(bytes.ok()) << bytes.status().to_string();
+  std::map<std::string, torch::Tensor> out;
+  if (!bytes.ok()) return out;
+  torch::serialize::InputArchive ar;
+  ar.load_from(reinterpret_cast<const char*>(bytes->data()), bytes->size());
+  for (const auto& k : ar.keys()) {
+    torch::Tensor t;
+    ar.read(k, t);
+    out[k] = t;
+  }
+  return out;
+}
+
+std::vector<fs::path> pngs_in(const fs::path& dir) {
+  std::vector<fs::path> out;
+  if (fs::is_directory(dir))
+    for (const auto& e : fs::directory_iterator(dir))
+      if (e.path().extension() == ".png") out.push_back(e.path().filename());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  if (!fs::exists(CRPGS_CLI_PATH))
+    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
+  const ComponentRegistry& reg = test::test_registry();
+  if (!reg.find(CRPGS_KIND_CONTEXT, "hash_grid") || !reg.find(CRPGS_KIND_ENTROPY, "gaussian"))
+    GTEST_SKIP() << "hash_grid/gaussian plugins not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli";
+  fs::remove_all(dir);
+  fs::create_directories(dir / "run");
+
+  // 1. Train and encode in this process; keep the encoder's symbols and quantised attributes.
+  auto raw = Config::from_string(kConfig, "decode_cli.yaml");
+  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
+  auto cfg = raw->resolve(reg);
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  ASSERT_TRUE(cfg->save((dir / "run" / "config.yaml").string()).ok());
+  auto trainer = setup_training(cfg.value(), reg, SetupOptions{(dir / "run").string(), false});
+  ASSERT_TRUE(trainer.ok()) << trainer.status().to_string();
+  Trainer& t = *trainer.value();
+  ASSERT_TRUE(t.train().ok());
+  QuantizedAttributes q;
+  auto coded = coded_model_from(t.model(), &q);
+  ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+  ASSERT_GT(coded->voxels.size(0), 10);
+  auto enc = encode_model(coded.value(), cfg.value(), codec_components_of(t.model()));
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  const std::string file = (dir / "scene.crpgs").string();
+  ASSERT_TRUE(write_file_atomic(file, enc->bytes).ok());
+
+  // 2. Two fresh processes decode it with different thread counts.
+  std::string log;
+  for (int threads : {1, 2}) {
+    const std::string out = (dir / ("dec" + std::to_string(threads))).string();
+    ASSERT_EQ(run_cli("decode '" + file + "' -o '" + out + "' --threads " + std::to_string(threads),
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("decoded in"), std::string::npos) << log;
+    EXPECT_TRUE(fs::exists(fs::path(out) / "config.yaml"));
+  }
+  const auto a = read_archive(dir / "dec1" / "decoded.pt");
+  const auto b = read_archive(dir / "dec2" / "decoded.pt");
+  ASSERT_FALSE(a.empty());
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& [k, v] : a) {
+    ASSERT_TRUE(b.count(k)) << k;
+    EXPECT_TRUE(v.dtype() == b.at(k).dtype() && torch::equal(v, b.at(k))) << k;
+  }
+  // Equal to what the encoder coded and to the training-side quantised attributes.
+  EXPECT_TRUE(torch::equal(a.at("voxels"), coded->voxels));
+  EXPECT_TRUE(torch::equal(a.at("offset_masks"), coded->offset_masks));
+  EXPECT_TRUE(torch::equal(a.at("feature_symbols"), coded->feature_sym));
+  EXPECT_TRUE(torch::equal(a.at("scaling_symbols"), coded->scaling_sym));
+  EXPECT_TRUE(torch::equal(a.at("offset_symbols"), coded->offset_sym));
+  EXPECT_TRUE(torch::equal(a.at("bounds"), coded->bounds));
+  EXPECT_EQ(a.at("voxel_size").item<double>(), coded->voxel_size);
+  EXPECT_TRUE(torch::equal(a.at("positions"), q.positions));
+  EXPECT_TRUE(torch::equal(a.at("features"), q.features));
+  EXPECT_TRUE(torch::equal(a.at("scaling"), q.scaling));
+  EXPECT_TRUE(torch::equal(a.at("offsets"), q.offsets));
+
+  // 3. Renders from the decode directory, the bitstream and the run's quantised model.
+  const std::vector<std::pair<std::string, std::string> > renders = {
+      {(dir / "dec1").string(), "1"}, {file, "2"}, {(dir / "run").string(), "2"}};
+  for (size_t i = 0; i < renders.size(); ++i) {
+    const std::string out = (dir / ("render" + std::to_string(i))).string();
+    ASSERT_EQ(
+        run_cli("render '" + renders[i].first + "' -o '" + out + "' --threads " + renders[i].second,
+                dir / "log.txt", &log),
+        0)
+        << log;
+    EXPECT_NE(log.find("ms/view"), std::string::npos) << log;
+  }
+  const auto names = pngs_in(dir / "render0");
+  ASSERT_EQ(names.size(), t.dataset().test.size());
+  for (size_t i = 1; i < renders.size(); ++i)
+    EXPECT_EQ(pngs_in(dir / ("render" + std::to_string(i))), names);
+  for (const auto& n : names) {
+    auto ref = load_image((dir / "render0" / n).string());
+    ASSERT_TRUE(ref.ok()) << ref.status().to_string();
+    for (size_t i = 1; i < renders.size(); ++i) {
+      auto other = load_image((dir / ("render" + std::to_string(i)) / n).string());
+      ASSERT_TRUE(other.ok()) << other.status().to_string();
+      EXPECT_EQ(other->width, ref->width);
+      EXPECT_TRUE(other->pixels == ref->pixels) << n << " differs: " << renders[i].first;
+    }
+  }
+
+  // 4. A model whose dataset is absent is refused with a message that says so.
+  EXPECT_NE(run_cli("render '" + (dir / "dec1").string() + "' -o '" + (dir / "none").string() +
+                        "' --set dataset.format=colmap --set dataset.path=" +
+                        (dir / "no_such_dataset").string(),
+                    dir / "log.txt", &log),
+            0);
+  EXPECT_NE(log.find("is absent"), std::string::npos) << log;
+#endif
+}
+
+}  // namespace
+}  // namespace crpgs
