@@ -4,4 +4,5 @@ list(APPEND CRPGS_BASE_TEST_SOURCES
   io/test_metrics.cpp
   io/test_colmap.cpp
   io/test_formats.cpp
-  io/test_datasets.cpp)
+  io/test_datasets.cpp
+  io/test_ply.cpp)

@@ -5,4 +5,8 @@ list(APPEND CRPGS_BASE_SOURCES
   src/io/json.cpp
   src/io/npy.cpp
   src/io/colmap.cpp
-  src/io/dataset.cpp)
+  src/io/dataset.cpp
+  src/io/ply.cpp)
+# Baking anchor models into 3DGS Gaussians (needs the anchor model, libtorch).
+list(APPEND CRPGS_TORCH_SOURCES
+  src/io/gaussian_export.cpp)

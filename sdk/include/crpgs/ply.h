@@ -1,0 +1,60 @@
+/// @file ply.h
+/// @brief Standard 3DGS scenes as .ply files (the INRIA reference layout), torch-free.
+///
+/// A vertex is `x y z nx ny nz f_dc_0..2 f_rest_0..f_rest_{3(B-1)-1} opacity scale_0..2
+/// rot_0..3`, all float32, binary little-endian, B = (degree+1)^2 SH coefficients per channel.
+/// Stored values are pre-activation: opacity is a logit, scales are logs, the rotation is a
+/// quaternion (w, x, y, z). f_rest is channel-major per vertex (every R coefficient 1..B-1, then
+/// G, then B). Colour from direction d (Gaussian centre minus camera centre, normalised):
+/// max(0.5 + Σ_b basis_b(d) · coeff_b, 0) per channel, with the 3DGS real SH basis (sh_basis).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "crpgs/status.h"
+
+namespace crpgs {
+
+/// SH coefficients per colour channel for a degree (0..3): (degree + 1)^2.
+constexpr int sh_coeff_count(int degree) {
+  return (degree + 1) * (degree + 1);
+}
+
+/// The 3DGS real SH basis at the unit direction (x, y, z): writes sh_coeff_count(degree) values
+/// (constants and signs exactly as the reference rasterizer's eval_sh).
+void sh_basis(int degree, float x, float y, float z, float* out);
+
+/// A 3DGS scene in the file's (pre-activation) parametrisation; arrays are row-major per vertex.
+struct PlyGaussians {
+  int sh_degree = 0;
+  std::vector<float> means;       ///< [N*3]
+  std::vector<float> sh_dc;       ///< [N*3] f_dc_0..2
+  std::vector<float> sh_rest;     ///< [N * 3*(B-1)] f_rest, channel-major per vertex
+  std::vector<float> opacity;     ///< [N] logit
+  std::vector<float> log_scales;  ///< [N*3]
+  std::vector<float> rotations;   ///< [N*4] (w, x, y, z)
+
+  size_t size() const { return opacity.size(); }
+  /// Checks that every array matches size() and the degree.
+  Status check() const;
+  /// Colour of Gaussian i seen from direction (x, y, z) (unit): max(0.5 + SH, 0) per channel.
+  std::array<float, 3> color(size_t i, float x, float y, float z) const;
+};
+
+/// The file's bytes (header + binary body; normals written as 0).
+StatusOr<std::string> encode_ply(const PlyGaussians& g);
+/// Writes encode_ply(g) atomically.
+Status write_ply(const std::string& path, const PlyGaussians& g);
+
+/// Parses a binary little-endian .ply with a `vertex` element holding the 3DGS properties (any
+/// scalar type, converted to float); the SH degree follows from the number of f_rest_i (0, 9, 24
+/// or 45). Other properties and elements after `vertex` are ignored. Refuses, with a message,
+/// ascii or big-endian files, headers over 64 KiB, missing properties, list properties before
+/// the vertex data, and counts the file is too short for (checked before allocating).
+StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::string& name);
+StatusOr<PlyGaussians> read_ply(const std::string& path);
+
+}  // namespace crpgs

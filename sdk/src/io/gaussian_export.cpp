@@ -1,0 +1,216 @@
+/// @file gaussian_export.cpp
+/// @brief Anchor model -> 3DGS Gaussians with fitted SH, and .ply Gaussians -> GaussianBatch.
+#include "crpgs/gaussian_export.h"
+
+#include <cmath>
+#include <stdexcept>
+
+#include <torch/nn/functional/normalization.h>
+
+namespace crpgs {
+namespace {
+
+using torch::indexing::Slice;
+
+/// A prefilter that keeps every anchor: baking is not about one camera's frustum.
+class AllVisible final : public Rasterizer {
+ public:
+  std::string type_name() const override { return "all_visible"; }
+  YAML::Node hyperparams() const override { return YAML::Node(); }
+  torch::Device device() const override { return torch::kCPU; }
+  RenderOutput render(const GaussianBatch&, const Camera&, const RenderSettings&) override {
+    throw std::logic_error("AllVisible only answers visible_anchors");
+  }
+  torch::Tensor visible_anchors(const torch::Tensor& positions, const torch::Tensor&, const Camera&,
+                                const RenderSettings&) override {
+    return torch::ones({positions.size(0)}, torch::kBool);
+  }
+};
+
+/// The generation MLPs as AnchorModel applies them: Linear, ReLU, Linear.
+torch::Tensor mlp(const std::map<std::string, torch::Tensor>& t, const std::string& name,
+                  const torch::Tensor& x) {
+  return torch::linear(torch::relu(torch::linear(x, t.at(name + ".w1"), t.at(name + ".b1"))),
+                       t.at(name + ".w2"), t.at(name + ".b2"));
+}
+
+}  // namespace
+
+torch::Tensor fibonacci_directions(int count) {
+  auto d = torch::empty({count, 3});
+  auto a = d.accessor<float, 2>();
+  const double golden = M_PI * (3.0 - std::sqrt(5.0));
+  for (int i = 0; i < count; ++i) {
+    const double z = 1.0 - (2.0 * i + 1.0) / count;
+    const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
+    a[i][0] = float(r * std::cos(golden * i));
+    a[i][1] = float(r * std::sin(golden * i));
+    a[i][2] = float(z);
+  }
+  return d;
+}
+
+torch::Tensor sh_basis_matrix(const torch::Tensor& dirs, int degree) {
+  const auto d = dirs.to(torch::kFloat).contiguous();
+  const int64_t s = d.size(0);
+  const int nb = sh_coeff_count(degree);
+  auto out = torch::empty({s, nb});
+  const float* p = d.data_ptr<float>();
+  float* o = out.data_ptr<float>();
+  for (int64_t i = 0; i < s; ++i)
+    sh_basis(degree, p[3 * i], p[3 * i + 1], p[3 * i + 2], o + nb * i);
+  return out;
+}
+
+torch::Tensor fit_sh(const torch::Tensor& colors, const torch::Tensor& dirs, int degree) {
+  auto basis = sh_basis_matrix(dirs, degree).to(torch::kDouble);  // [S, B]
+  auto bt = basis.t();
+  auto solve = torch::matmul(torch::inverse(torch::matmul(bt, basis)), bt);  // [B, S]
+  auto target = colors.to(torch::kDouble) - 0.5;                             // [G, S, 3]
+  return torch::matmul(solve, target).to(torch::kFloat);                     // [G, B, 3]
+}
+
+StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& options,
+                                      const QuantizedAttributes* q) {
+  const int degree = options.sh_degree;
+  if (degree < 0 || degree > 3)
+    return Status(StatusCode::kInvalidArgument, "export: SH degree must be 0..3");
+  if (options.directions < sh_coeff_count(degree))
+    return Status(StatusCode::kInvalidArgument,
+                  "export: need at least " + std::to_string(sh_coeff_count(degree)) +
+                      " directions for SH degree " + std::to_string(degree));
+  if (options.camera_centers.empty())
+    return Status(StatusCode::kInvalidArgument, "export: no camera centres for the view inputs");
+  torch::NoGradGuard no_grad;
+  AllVisible all;
+  Camera cam;
+  cam.width = cam.height = 1;
+  cam.fx = cam.fy = 1;
+  RenderSettings settings;
+  // Only the feature columns of the MLP input and the (de)quantised attributes are used.
+  NeuralGaussians ng = model.generate(cam, -1, all, settings, false);
+  const int64_t M = ng.input.size(0);
+  const int64_t K = model.n_offsets();
+  torch::Tensor pos = (q ? q->positions : model.anchors()).detach().to(torch::kFloat);  // [M, 3]
+  torch::Tensor mask = (q ? q->offset_masks : model.offset_masks()).to(torch::kFloat);  // [M, K]
+  if (pos.size(0) != M || mask.size(0) != M)
+    return Status(
+        StatusCode::kInvalidArgument,
+        "export: the model renders " + std::to_string(M) + " anchors but " +
+            std::to_string(pos.size(0)) +
+            " positions were given (pass the QuantizedAttributes given to set_quantized)");
+  const SceneEffects& fx = model.options().effects;
+  const int64_t F = ng.input.size(1) - (fx.view_dependent ? 3 : 0) - (fx.distance_input ? 1 : 0);
+  auto feat = ng.input.narrow(1, 0, F);  // [M, F]
+  auto scal = ng.used_scaling;           // [M, 6]
+  auto offs = ng.used_offsets;           // [M, K, 3]
+
+  // Representative view per anchor: mean unit direction and mean distance from the cameras.
+  auto sum_u = torch::zeros({M, 3}, torch::kDouble), sum_d = torch::zeros({M, 1}, torch::kDouble);
+  auto pos_d = pos.to(torch::kDouble);
+  Eigen::Vector3d mean_c = Eigen::Vector3d::Zero();
+  for (const auto& c : options.camera_centers) {
+    auto d = pos_d - torch::tensor({c[0], c[1], c[2]}, torch::kDouble);  // [M, 3]
+    auto n = d.norm(2, 1, true).clamp_min(1e-12);
+    sum_u += d / n;
+    sum_d += n;
+    mean_c += c;
+  }
+  mean_c /= double(options.camera_centers.size());
+  auto u_norm = sum_u.norm(2, 1, true);
+  auto fallback = pos_d - torch::tensor({mean_c[0], mean_c[1], mean_c[2]}, torch::kDouble);
+  fallback = fallback / fallback.norm(2, 1, true).clamp_min(1e-12);
+  auto rep_dir = torch::where(u_norm > 1e-6, sum_u / u_norm.clamp_min(1e-12), fallback)
+                     .to(torch::kFloat);                                              // [M, 3]
+  auto rep_dist = (sum_d / double(options.camera_centers.size())).to(torch::kFloat);  // [M, 1]
+
+  auto view_input = [&](const torch::Tensor& f, const torch::Tensor& dir,
+                        const torch::Tensor& dist) {
+    std::vector<torch::Tensor> parts{f};
+    if (fx.view_dependent) parts.push_back(dir);
+    if (fx.distance_input) parts.push_back(dist);
+    return parts.size() == 1 ? f : torch::cat(parts, 1);
+  };
+  const auto mlps = model.mlp_tensors();
+  auto in_rep = view_input(feat, rep_dir, rep_dist);                    // [M, C]
+  auto opacity = torch::tanh(mlp(mlps, "mlp_opacity", in_rep)) * mask;  // [M, K]
+  auto cov = mlp(mlps, "mlp_cov", in_rep).reshape({M * K, 7});
+  auto keep = (opacity.reshape({M * K}) > 0).nonzero().squeeze(1);  // [G]
+  const int64_t G = keep.size(0);
+  auto anchor_of = keep.div(K, "floor");
+  auto sc = scal.index_select(0, anchor_of);  // [G, 6]
+  auto means = pos.index_select(0, anchor_of) +
+               offs.reshape({M * K, 3}).index_select(0, keep) * sc.index({Slice(), Slice(0, 3)});
+  auto cv = cov.index_select(0, keep);
+  auto scales = sc.index({Slice(), Slice(3, 6)}) * torch::sigmoid(cv.index({Slice(), Slice(0, 3)}));
+  auto rot = torch::nn::functional::normalize(cv.index({Slice(), Slice(3, 7)}),
+                                              torch::nn::functional::NormalizeFuncOptions().dim(1));
+  auto op =
+      opacity.reshape({M * K}).index_select(0, keep).to(torch::kDouble).clamp(1e-12, 1 - 1e-12);
+
+  // Colours over the sphere of directions, in chunks of anchors; SH fitted per Gaussian.
+  const int S = options.directions;
+  auto dirs = fibonacci_directions(S);  // [S, 3]
+  torch::Tensor app;
+  if (fx.appearance_dim > 0) app = mlps.at("appearance").mean(0);  // as camera_index = -1
+  const int nb = sh_coeff_count(degree);
+  auto coeffs = torch::empty({G, nb, 3});
+  const int64_t chunk = 1024;
+  auto keep_acc = keep.accessor<int64_t, 1>();
+  int64_t g0 = 0;
+  for (int64_t a0 = 0; a0 < M && g0 < G; a0 += chunk) {
+    const int64_t mc = std::min(chunk, M - a0);
+    int64_t g1 = g0;
+    while (g1 < G && keep_acc[g1] < (a0 + mc) * K) ++g1;
+    if (g1 == g0) continue;
+    auto f = feat.narrow(0, a0, mc).unsqueeze(0).expand({S, mc, F}).reshape({S * mc, F});
+    auto dd = dirs.unsqueeze(1).expand({S, mc, 3}).reshape({S * mc, 3});
+    auto dist = rep_dist.narrow(0, a0, mc).unsqueeze(0).expand({S, mc, 1}).reshape({S * mc, 1});
+    auto in = view_input(f, dd, dist);
+    if (app.defined()) in = torch::cat({in, app.unsqueeze(0).expand({S * mc, app.size(0)})}, 1);
+    auto col = torch::sigmoid(mlp(mlps, "mlp_color", in))
+                   .reshape({S, mc * K, 3})
+                   .permute({1, 0, 2});  // [mc*K, S, 3]
+    auto rows = keep.narrow(0, g0, g1 - g0) - a0 * K;
+    coeffs.narrow(0, g0, g1 - g0).copy_(fit_sh(col.index_select(0, rows), dirs, degree));
+    g0 = g1;
+  }
+
+  PlyGaussians out;
+  out.sh_degree = degree;
+  auto to_vec = [](const torch::Tensor& t) {
+    auto c = t.to(torch::kFloat).contiguous();
+    return std::vector<float>(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
+  };
+  out.means = to_vec(means);
+  out.sh_dc = to_vec(coeffs.select(1, 0));                               // [G, 3]
+  out.sh_rest = to_vec(coeffs.narrow(1, 1, nb - 1).permute({0, 2, 1}));  // [G, 3, B-1]
+  out.opacity = to_vec(torch::log(op / (1 - op)));
+  out.log_scales = to_vec(torch::log(scales.clamp_min(1e-30)));
+  out.rotations = to_vec(rot);
+  return out;
+}
+
+GaussianBatch ply_to_batch(const PlyGaussians& g, const Camera& camera) {
+  const int64_t n = int64_t(g.size());
+  const int nb = sh_coeff_count(g.sh_degree);
+  auto tensor = [](const std::vector<float>& v, std::vector<int64_t> shape) {
+    return torch::from_blob(const_cast<float*>(v.data()), shape, torch::kFloat).clone();
+  };
+  GaussianBatch b;
+  b.means = tensor(g.means, {n, 3});
+  b.scales = torch::exp(tensor(g.log_scales, {n, 3}));
+  b.rotations = tensor(g.rotations, {n, 4});
+  b.opacities = torch::sigmoid(tensor(g.opacity, {n}));
+  const Eigen::Vector3d c = camera.center();
+  auto d = b.means - torch::tensor({float(c[0]), float(c[1]), float(c[2])});
+  d = d / d.norm(2, 1, true).clamp_min(1e-12);
+  auto basis = sh_basis_matrix(d, g.sh_degree);  // [N, B]
+  auto coeffs = tensor(g.sh_dc, {n, 1, 3});      // [N, 1, 3]
+  if (nb > 1)
+    coeffs = torch::cat({coeffs, tensor(g.sh_rest, {n, 3, nb - 1}).permute({0, 2, 1})}, 1);
+  b.colors = ((basis.unsqueeze(2) * coeffs).sum(1) + 0.5f).clamp_min(0);  // [N, 3]
+  return b;
+}
+
+}  // namespace crpgs
