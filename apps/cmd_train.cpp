@@ -146,13 +146,17 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
 
 const char* kDemoConfig = R"yaml(
 # The embedded default scene: procedural objects (some repeated far apart), ground truth
-# rendered by our own rasterizer; HAC's rate path (hash-grid context, Gaussian entropy model);
-# the fast schedule at 1/20 of the paper's phase boundaries. Ends with the bitstream, decoded.
+# rendered by our own rasterizer; CRP-GS (configs/crpgs.yaml's components: SFA features,
+# hash-grid context, Gaussian entropy model, COHS links) on the fast schedule at 3/80 of the
+# paper's 40k-iteration phase boundaries. Ends with the bitstream, decoded.
 dataset: {format: synthetic}
+features: {type: sfa, ratio: 0.4}
 context: {type: hash_grid}
 entropy: {type: gaussian}
-rate: {lambda: 0.002}
-train: {schedule: fast, fast_factor: 0.05, eval_interval: 100, checkpoint_interval: 500}
+links: {type: link_cohs}
+rate: {lambda: 0.002, recompute_bounds: false}
+train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interval: 100,
+        checkpoint_interval: 500}
 )yaml";
 
 }  // namespace

@@ -57,7 +57,7 @@ struct CodedModel {
   QuantSteps q0;
   int64_t chunk = 3000;
   /// [N] int64: canonical index of each anchor's root, -1 for none (one hop, one-to-one).
-  /// Undefined: a model without links (no AMSK/LINK sections).
+  /// Undefined: a model without links or without a single leaf (no AMSK/LINK sections).
   torch::Tensor links;
   torch::Tensor anchor_mask;       ///< [N0] bool, written with links: which model anchors are coded
   std::string geometry = "draco";  ///< "draco" or "raw"

@@ -651,6 +651,10 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
     }
     m.anchor_mask = model.active_anchors();
     m.leaf_residual = model.leaf_mlp().residual;
+    if (!(m.links >= 0).any().item<bool>()) {  // no leaves: HAC's stream, no side information
+      m.links = torch::Tensor();
+      m.anchor_mask = torch::Tensor();
+    }
   }
   m.geometry = model.rate_options().geometry;
   // Quantise in coding order, so the steps come from the same context chunks as the decoder's.
