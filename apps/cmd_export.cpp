@@ -1,0 +1,223 @@
+/// @file cmd_export.cpp
+/// @brief `crpgs export` (anchor model -> standard 3DGS .ply with SH colours) and `crpgs import`
+/// (render and evaluate a standard 3DGS .ply on the test views of a dataset).
+#include <ATen/Parallel.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <thread>
+
+#include "cli_common.h"
+#include "crpgs/atomic_file.h"
+#include "crpgs/gaussian_export.h"
+#include "crpgs/image.h"
+#include "crpgs/metrics.h"
+#include "crpgs/ply.h"
+
+namespace crpgs::cli {
+
+namespace {
+namespace fs = std::filesystem;
+
+Image to_image(const torch::Tensor& img) {  // [H, W, C] float
+  const auto t = img.detach().to(torch::kFloat).contiguous();
+  Image im = Image::zeros(int(t.size(1)), int(t.size(0)), int(t.size(2)));
+  std::memcpy(im.pixels.data(), t.data_ptr<float>(), im.pixels.size() * sizeof(float));
+  return im;
+}
+
+/// Renders the .ply Gaussians on `views` and measures them as `crpgs eval` does (8-bit PNG
+/// round trip); PNGs go to png_dir when set.
+StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterizer,
+                                  const std::vector<View>& views,
+                                  const std::array<float, 3>& background,
+                                  const std::string& png_dir) {
+  torch::NoGradGuard no_grad;
+  if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no test views");
+  if (!png_dir.empty()) fs::create_directories(png_dir);
+  RenderSettings settings;
+  settings.background = background;
+  EvalResult res;
+  double seconds = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const View& v = views[i];
+    const auto t0 = std::chrono::steady_clock::now();
+    auto img = rasterizer.render(ply_to_batch(ply, v.camera), v.camera, settings).image;
+    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const Image render = quantize_8bit(to_image(img));
+    CRPGS_ASSIGN_OR_RETURN(ImageMetrics m, compare_images(render, quantize_8bit(v.image)));
+    ViewMetrics vm;
+    vm.name = v.camera.name;
+    vm.psnr = m.psnr;
+    vm.ssim = m.ssim;
+    res.views.push_back(vm);
+    res.mean_psnr += m.psnr / double(views.size());
+    res.mean_ssim += m.ssim / double(views.size());
+    if (!png_dir.empty()) {
+      char name[32];
+      std::snprintf(name, sizeof name, "test_%05zu.png", i);
+      CRPGS_RETURN_IF_ERROR(save_png(render, (fs::path(png_dir) / name).string()));
+    }
+  }
+  res.seconds_per_view = seconds / double(views.size());
+  return res;
+}
+
+/// An anchor model (decoded from a .crpgs file, or a run's quantised/trained model) with the
+/// dataset and rasterizer of its config.
+struct Source {
+  std::unique_ptr<Trainer> setup;
+  std::unique_ptr<AnchorModel> decoded;
+  QuantizedAttributes q;
+  bool quantized = false;
+  AnchorModel& model() { return decoded ? *decoded : setup->model(); }
+};
+
+StatusOr<Source> load_source(const GlobalOptions& g, const ComponentRegistry& r,
+                             const std::string& source) {
+  Source s;
+  if (fs::is_regular_file(source)) {
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
+    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
+    Config cfg = dec.config;
+    for (const auto& set : g.sets) CRPGS_RETURN_IF_ERROR(cfg.apply_override(set));
+    CRPGS_ASSIGN_OR_RETURN(cfg, cfg.resolve(r));
+    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
+    CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
+    CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{}));
+    return s;
+  }
+  const std::string config_path = (fs::path(source) / "config.yaml").string();
+  if (!fs::is_regular_file(config_path))
+    return Status(StatusCode::kNotFound,
+                  source + " is neither a .crpgs file nor a training run directory (config.yaml)");
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, load_config(config_path, g, r));
+  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{source, true}));
+  if (s.setup->iteration() == 0)
+    return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
+  if (s.setup->model().has_rate()) {  // what the bitstream would hold
+    s.q = s.setup->model().quantize();
+    s.setup->model().set_quantized(s.q);
+    s.quantized = true;
+  }
+  return s;
+}
+
+int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
+                   int degree, int directions, int threads) {
+  ComponentRegistry r = load_registry(g);
+  at::set_num_threads(threads > 0 ? threads
+                                  : std::max(1, int(std::thread::hardware_concurrency())));
+  auto src = load_source(g, r, source);
+  if (!src.ok()) return report_error(src.status());
+  AnchorModel& model = src->model();
+  const Dataset& ds = src->setup->dataset();
+  BakeOptions opt;
+  opt.sh_degree = degree;
+  opt.directions = directions;
+  for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
+  if (opt.camera_centers.empty())
+    for (const auto& v : ds.test) opt.camera_centers.push_back(v.camera.center());
+  const auto t0 = std::chrono::steady_clock::now();
+  auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
+  if (!baked.ok()) return report_error(baked.status());
+  Status st = write_ply(out, baked.value());
+  if (!st.ok()) return report_error(st);
+  const double bake_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::error_code ec;
+  std::printf("wrote %s: %zu Gaussians, SH degree %d (%d directions), %llu bytes, %.2f s\n",
+              out.c_str(), baked->size(), degree, directions,
+              static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
+  if (ds.test.empty()) return 0;
+  // Read the file back: what is measured is what was written.
+  auto back = read_ply(out);
+  if (!back.ok()) return report_error(back.status());
+  auto anchor_eval = evaluate_views(model, src->setup->rasterizer(), ds.test, "");
+  if (!anchor_eval.ok()) return report_error(anchor_eval.status());
+  auto ply_eval = evaluate_ply(back.value(), src->setup->rasterizer(), ds.test,
+                               model.options().effects.background, "");
+  if (!ply_eval.ok()) return report_error(ply_eval.status());
+  std::vector<std::vector<std::string>> rows = {{"VIEW", "ANCHOR MODEL PSNR", "EXPORTED PSNR"}};
+  char a[32], b[32];
+  for (size_t i = 0; i < ply_eval->views.size(); ++i) {
+    std::snprintf(a, sizeof a, "%.3f", anchor_eval->views[i].psnr);
+    std::snprintf(b, sizeof b, "%.3f", ply_eval->views[i].psnr);
+    rows.push_back({ply_eval->views[i].name, a, b});
+  }
+  std::snprintf(a, sizeof a, "%.3f", anchor_eval->mean_psnr);
+  std::snprintf(b, sizeof b, "%.3f", ply_eval->mean_psnr);
+  rows.push_back({"mean", a, b});
+  print_table(rows);
+  return 0;
+}
+
+int import_command(const GlobalOptions& g, const std::string& path, const std::string& config,
+                   const std::string& png_dir, int threads) {
+  ComponentRegistry r = load_registry(g);
+  at::set_num_threads(threads > 0 ? threads
+                                  : std::max(1, int(std::thread::hardware_concurrency())));
+  auto ply = read_ply(path);
+  if (!ply.ok()) return report_error(ply.status());
+  auto cfg = load_config(config, g, r);
+  if (!cfg.ok()) return report_error(cfg.status());
+  auto options = model_options_from_config(cfg.value());
+  if (!options.ok()) return report_error(options.status());
+  // The dataset and rasterizer exactly as the config sets them up (its model is not used).
+  auto setup = setup_training(cfg.value(), r, SetupOptions{});
+  if (!setup.ok()) return report_error(setup.status());
+  auto ev = evaluate_ply(ply.value(), setup.value()->rasterizer(), setup.value()->dataset().test,
+                         options->effects.background, png_dir);
+  if (!ev.ok()) return report_error(ev.status());
+  std::printf("%s: %zu Gaussians, SH degree %d; %.1f ms/view\n", path.c_str(), ply->size(),
+              ply->sh_degree, ev->seconds_per_view * 1e3);
+  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
+  char a[32], b[32];
+  for (const auto& v : ev->views) {
+    std::snprintf(a, sizeof a, "%.3f", v.psnr);
+    std::snprintf(b, sizeof b, "%.4f", v.ssim);
+    rows.push_back({v.name, a, b});
+  }
+  std::snprintf(a, sizeof a, "%.3f", ev->mean_psnr);
+  std::snprintf(b, sizeof b, "%.4f", ev->mean_ssim);
+  rows.push_back({"mean", a, b});
+  print_table(rows);
+  return 0;
+}
+
+}  // namespace
+
+void add_export_commands(CLI::App& app, GlobalOptions& g) {
+  static std::string source, out, ply, config, png_dir;
+  static int degree = 3, directions = 96, threads = 0;
+  auto* ex = app.add_subcommand(
+      "export",
+      "Bake an anchor model (a .crpgs file or a training run) into a standard 3DGS .ply (INRIA "
+      "layout, SH colours fitted to the view-dependent colour MLP) and compare the test-view "
+      "PSNR of the exported Gaussians with the anchor model's");
+  ex->add_option("SOURCE", source, ".crpgs file or training run directory")->required();
+  ex->add_option("-o,--output", out, "the .ply to write")->required();
+  ex->add_option("--sh-degree", degree, "SH degree of the colours (0..3)")->check(CLI::Range(0, 3));
+  ex->add_option("--directions", directions, "view directions the SH are fitted on")
+      ->check(CLI::Range(16, 4096));
+  ex->add_option("--threads", threads, "CPU threads; 0 = all cores")->check(CLI::NonNegativeNumber);
+  ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
+  ex->callback([&g] {
+    throw CLI::RuntimeError(export_command(g, source, out, degree, directions, threads));
+  });
+
+  auto* im = app.add_subcommand(
+      "import",
+      "Render a standard 3DGS .ply (binary, SH degree 0..3) on the test views of the dataset a "
+      "crpgs config names, and report PSNR/SSIM per view (as `crpgs eval`)");
+  im->add_option("FILE", ply, ".ply file")->required();
+  im->add_option("-c,--config", config, "config whose dataset (and rasterizer) is used")
+      ->required();
+  im->add_option("-o,--output", png_dir, "write the renders as PNGs here");
+  im->add_option("--threads", threads, "CPU threads; 0 = all cores")->check(CLI::NonNegativeNumber);
+  im->add_option("--set", g.sets, "override a config key, e.g. --set dataset.path=DIR");
+  im->callback([&g] { throw CLI::RuntimeError(import_command(g, ply, config, png_dir, threads)); });
+}
+
+}  // namespace crpgs::cli
