@@ -1,0 +1,169 @@
+// Baking anchor models into 3DGS Gaussians: SH fit, export -> .ply -> import -> render.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <ATen/CPUGeneratorImpl.h>
+
+#include "crpgs/anchor_model.h"
+#include "crpgs/components.h"
+#include "crpgs/gaussian_export.h"
+#include "crpgs/scene_generator.h"
+#include "io/io_test_util.h"
+#include "raster/cpu_rasterizer.h"
+
+namespace crpgs {
+namespace {
+
+TEST(GaussianExport, ShFitIsExactOnAFieldOfTheSameDegree) {
+  torch::manual_seed(7);
+  auto dirs = fibonacci_directions(96);
+  EXPECT_TRUE(torch::allclose(dirs.norm(2, 1), torch::ones({96}), 0, 1e-6));
+  for (int d = 0; d <= 3; ++d) {
+    const int nb = sh_coeff_count(d);
+    auto coeffs = torch::randn({20, nb, 3}) * 0.3;     // [G, B, 3]
+    auto basis = sh_basis_matrix(dirs, d);             // [S, B]
+    auto colors = torch::matmul(basis, coeffs) + 0.5;  // [G, S, 3]
+    auto fit = fit_sh(colors, dirs, d);
+    EXPECT_LT((fit - coeffs).abs().max().item<float>(), 2e-5) << "degree " << d;
+    // The fitted field evaluated through PlyGaussians (the importer's path) matches too.
+    PlyGaussians g;
+    g.sh_degree = d;
+    auto dc = fit.select(1, 0).contiguous();
+    auto rest = fit.narrow(1, 1, nb - 1).permute({0, 2, 1}).contiguous();
+    g.sh_dc.assign(dc.data_ptr<float>(), dc.data_ptr<float>() + dc.numel());
+    g.sh_rest.assign(rest.data_ptr<float>(), rest.data_ptr<float>() + rest.numel());
+    g.opacity.assign(20, 0.f);
+    const float* dp = dirs.data_ptr<float>();
+    for (int s : {0, 31, 95}) {
+      const auto c = g.color(5, dp[3 * s], dp[3 * s + 1], dp[3 * s + 2]);
+      for (int ch = 0; ch < 3; ++ch)
+        EXPECT_NEAR(c[size_t(ch)], std::max(0.f, colors[5][s][ch].item<float>()), 2e-5);
+    }
+  }
+  // A lower degree than the field's is a least-squares fit, not exact.
+  auto coeffs = torch::randn({4, 16, 3});
+  auto colors = torch::matmul(sh_basis_matrix(dirs, 3), coeffs) + 0.5;
+  EXPECT_GT((fit_sh(colors, dirs, 1) - coeffs.narrow(1, 0, 4)).abs().max().item<float>(), 1e-3);
+}
+
+struct Scene {
+  Dataset ds;
+  std::shared_ptr<raster::CpuRasterizer> raster = std::make_shared<raster::CpuRasterizer>(1);
+  Scene() {
+    SyntheticSceneOptions o;
+    o.width = 48;
+    o.height = 36;
+    o.views = 6;
+    o.sfm_points = 800;
+    auto s = generate_scene(o, *raster);
+    if (!s.ok()) throw StatusError(s.status());
+    ds = std::move(s).value();
+  }
+  std::unique_ptr<AnchorModel> model(const SceneEffects& fx) const {
+    AnchorModelOptions o;
+    o.voxel_size = 0.1;
+    o.effects = fx;
+    AnchorInit in;
+    for (const auto& p : ds.points) in.points.push_back({p.x(), p.y(), p.z()});
+    for (const auto& v : ds.train) in.train_cameras.push_back(v.camera);
+    auto m = AnchorModel::create(o, identity_feature_model(50), in,
+                                 at::make_generator<at::CPUGeneratorImpl>(5));
+    if (!m.ok()) throw StatusError(m.status());
+    return std::move(m).value();
+  }
+  BakeOptions bake(int degree) const {
+    BakeOptions b;
+    b.sh_degree = degree;
+    for (const auto& v : ds.train) b.camera_centers.push_back(v.camera.center());
+    return b;
+  }
+};
+
+TEST(GaussianExport, ExportImportRenderEqualsTheBakedGaussians) {
+  Scene s;
+  auto m = s.model(SceneEffects{});
+  torch::NoGradGuard ng;
+  const auto dir = test::fresh_dir();
+  for (int d : {0, 3}) {
+    auto baked = bake_gaussians(*m, s.bake(d));
+    ASSERT_TRUE(baked.ok()) << baked.status().message();
+    ASSERT_GT(baked->size(), 100u);
+    const std::string path = (dir / "scene.ply").string();
+    ASSERT_TRUE(write_ply(path, *baked).ok());
+    auto back = read_ply(path);
+    ASSERT_TRUE(back.ok()) << back.status().message();
+    for (const auto& v : s.ds.test) {
+      RenderSettings rs;
+      auto a = s.raster->render(ply_to_batch(*baked, v.camera), v.camera, rs).image;
+      auto b = s.raster->render(ply_to_batch(*back, v.camera), v.camera, rs).image;
+      EXPECT_TRUE(torch::equal(a, b)) << "degree " << d;
+      EXPECT_GT(a.abs().sum().item<float>(), 0.f);  // something was rendered
+    }
+  }
+}
+
+TEST(GaussianExport, WithoutViewInputsTheBakeReproducesGenerate) {
+  // No view direction and no distance input: every attribute is view-independent, so the baked
+  // Gaussians (degree 0) must render like the anchor model itself.
+  Scene s;
+  SceneEffects fx;
+  fx.view_dependent = false;
+  fx.distance_input = false;
+  auto m = s.model(fx);
+  torch::NoGradGuard ng;
+  auto baked = bake_gaussians(*m, s.bake(0));
+  ASSERT_TRUE(baked.ok()) << baked.status().message();
+  RenderSettings rs;
+  for (const auto& v : s.ds.test) {
+    auto gen = m->generate(v.camera, -1, *s.raster, rs, false);
+    auto want = s.raster->render(gen.batch, v.camera, rs).image;
+    auto got = s.raster->render(ply_to_batch(*baked, v.camera), v.camera, rs).image;
+    EXPECT_LT((want - got).abs().max().item<float>(), 1e-4);
+  }
+}
+
+TEST(GaussianExport, ViewDependentColourIsApproximatedBySh) {
+  // With view inputs the bake is an approximation: degree 3 must be at least as close to the
+  // anchor model's renders as degree 0 (same opacities and shapes, richer colour).
+  Scene s;
+  auto m = s.model(SceneEffects{});
+  torch::NoGradGuard ng;
+  auto b0 = bake_gaussians(*m, s.bake(0));
+  auto b3 = bake_gaussians(*m, s.bake(3));
+  ASSERT_TRUE(b0.ok() && b3.ok());
+  ASSERT_EQ(b0->size(), b3->size());
+  EXPECT_EQ(b0->means, b3->means);
+  EXPECT_EQ(b3->sh_rest.size(), b3->size() * 45);
+  RenderSettings rs;
+  double e0 = 0, e3 = 0;
+  for (const auto& v : s.ds.test) {
+    auto want =
+        s.raster->render(m->generate(v.camera, -1, *s.raster, rs, false).batch, v.camera, rs).image;
+    e0 += (want - s.raster->render(ply_to_batch(*b0, v.camera), v.camera, rs).image)
+              .pow(2)
+              .mean()
+              .item<double>();
+    e3 += (want - s.raster->render(ply_to_batch(*b3, v.camera), v.camera, rs).image)
+              .pow(2)
+              .mean()
+              .item<double>();
+  }
+  EXPECT_LE(e3, e0 * 1.05);
+  EXPECT_LT(e3, 0.05);
+}
+
+TEST(GaussianExport, RefusesBadOptions) {
+  Scene s;
+  auto m = s.model(SceneEffects{});
+  auto b = s.bake(4);
+  EXPECT_FALSE(bake_gaussians(*m, b).ok());
+  b = s.bake(3);
+  b.directions = 10;
+  EXPECT_FALSE(bake_gaussians(*m, b).ok());
+  b = s.bake(1);
+  b.camera_centers.clear();
+  EXPECT_FALSE(bake_gaussians(*m, b).ok());
+}
+
+}  // namespace
+}  // namespace crpgs
