@@ -21,8 +21,9 @@ grep -Eq "^entropy +gaussian .*$work/prefix/lib/crpgs/plugins" <<<"$out" || fail
 desc=$("$crpgs" --plugin-dir "$work/build/plugins" plugins describe gain)
 grep -q 'initial value of every channel gain' <<<"$desc" || fail "describe gain"
 printf 'features:\n  type: gain\n  init: 2.5\n' >"$work/cfg.yaml"
-"$crpgs" --plugin-dir "$work/build/plugins" config check "$work/cfg.yaml" | grep -q 'init: 2.5' \
-  || fail "config with the example plugin"
+# Capture first: with pipefail, `grep -q` closing the pipe early would fail the writer (SIGPIPE).
+checked=$("$crpgs" --plugin-dir "$work/build/plugins" config check "$work/cfg.yaml")
+grep -q 'init: 2.5' <<<"$checked" || fail "config with the example plugin"
 printf 'features:\n  type: gain\n  init: -1\n' >"$work/bad.yaml"
 if err=$("$crpgs" --plugin-dir "$work/build/plugins" config check "$work/bad.yaml" 2>&1); then
   fail "out-of-range value accepted"

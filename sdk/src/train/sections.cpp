@@ -111,7 +111,7 @@ const std::vector<CoreSection>& core_sections() {
            range(P("full_iterations", T::kInt, YAML::Node(30000),
                    "length of the full schedule (HAC 30000, CRP-GS 40000); `fast` scales it"),
                  1, 1e8),
-           P("link_builds", T::kIntList, YAML::Node(std::vector<int>{30000, 33000, 36000}),
+           P("link_builds", T::kIntList, YAML::Load("[30000, 33000, 36000]"),
              "iterations of the full schedule at which anchor links are (re)built from scratch "
              "(only with a `links` component; `fast` scales them)"),
            range(P("seed", T::kInt, YAML::Node(0), "random seed (init, growing, view order)"), 0,
