@@ -3,6 +3,8 @@
 /// pruning, and a small Adam whose per-row state is grown and pruned with the anchors.
 #include "crpgs/anchor_model.h"
 
+#include "crpgs/links.h"
+
 #include <torch/torch.h>
 
 #include <ATen/Parallel.h>
@@ -266,75 +268,12 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
     g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
 }
 
-torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points_in) {
-  auto pts = points_in.to(torch::kFloat).contiguous();
-  const int64_t n = pts.size(0);
-  auto out = torch::full({n}, 1e-7f);
-  if (n < 2) return out;
-  auto lo = std::get<0>(pts.min(0)), hi = std::get<0>(pts.max(0));
-  auto ext = (hi - lo).clamp_min(1e-6);
-  // Cell size: about 2 points per cell in the densest layout we expect (surfaces).
-  const double cell = std::max(ext.max().item<double>() / std::cbrt(double(n)) * 0.7, 1e-9);
-  const float* P = pts.data_ptr<float>();
-  const float lx = lo[0].item<float>(), ly = lo[1].item<float>(), lz = lo[2].item<float>();
-  const int64_t dims[3] = {int64_t(ext[0].item<double>() / cell) + 1,
-                           int64_t(ext[1].item<double>() / cell) + 1,
-                           int64_t(ext[2].item<double>() / cell) + 1};
-  const int64_t max_dim = std::max({dims[0], dims[1], dims[2]});
-  auto cell_of = [&](int64_t i, int axis) {
-    const float o = axis == 0 ? lx : axis == 1 ? ly : lz;
-    return std::min<int64_t>(int64_t((P[3 * i + axis] - o) / cell), dims[axis] - 1);
-  };
-  auto key = [&](int64_t x, int64_t y, int64_t z) { return (x * dims[1] + y) * dims[2] + z; };
-  std::vector<std::pair<int64_t, int64_t>> sorted(static_cast<size_t>(n));
-  for (int64_t i = 0; i < n; ++i)
-    sorted[size_t(i)] = {key(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), i};
-  std::sort(sorted.begin(), sorted.end());
-  float* O = out.data_ptr<float>();
-  at::parallel_for(0, n, 256, [&](int64_t begin, int64_t end) {
-    for (int64_t i = begin; i < end; ++i) {
-      const int64_t c[3] = {cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)};
-      double best[3] = {std::numeric_limits<double>::infinity(),
-                        std::numeric_limits<double>::infinity(),
-                        std::numeric_limits<double>::infinity()};
-      for (int64_t r = 0; r <= max_dim; ++r) {
-        for (int64_t dx = -r; dx <= r; ++dx) {
-          const int64_t x = c[0] + dx;
-          if (x < 0 || x >= dims[0]) continue;
-          for (int64_t dy = -r; dy <= r; ++dy) {
-            const int64_t y = c[1] + dy;
-            if (y < 0 || y >= dims[1]) continue;
-            for (int64_t dz = -r; dz <= r; ++dz) {
-              if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != r) continue;
-              const int64_t z = c[2] + dz;
-              if (z < 0 || z >= dims[2]) continue;
-              const int64_t k = key(x, y, z);
-              auto it =
-                  std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, int64_t(-1)));
-              for (; it != sorted.end() && it->first == k; ++it) {
-                const int64_t j = it->second;
-                if (j == i) continue;
-                const double ddx = P[3 * j] - P[3 * i], ddy = P[3 * j + 1] - P[3 * i + 1],
-                             ddz = P[3 * j + 2] - P[3 * i + 2];
-                double d = ddx * ddx + ddy * ddy + ddz * ddz;
-                for (int q = 0; q < 3; ++q)
-                  if (d < best[q]) std::swap(d, best[q]);
-              }
-            }
-          }
-        }
-        // Points outside the shells seen so far are at least r*cell away.
-        const double reach = double(r) * cell;
-        if (best[2] <= reach * reach) break;
-      }
-      double sum = 0;
-      int cnt = 0;
-      for (double b : best)
-        if (std::isfinite(b)) sum += b, ++cnt;
-      O[i] = std::max(float(cnt ? sum / 3.0 : 1e-7), 1e-7f);
-    }
-  });
-  return out;
+torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points) {
+  // The exact grid kNN of the link strategies; fewer than 3 other points count as distance 0.
+  auto nn = nearest_neighbors(points.to(torch::kFloat), torch::Tensor(), 3, false);
+  TORCH_CHECK(nn.ok(), nn.status().to_string());
+  auto d2 = nn->sq_dist.masked_fill(torch::isinf(nn->sq_dist), 0.0);  // [N, 3]
+  return (d2.sum(1) / 3).clamp_min(1e-7).to(torch::kFloat);
 }
 
 AnchorModel::AnchorModel(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
