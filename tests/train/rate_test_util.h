@@ -9,7 +9,9 @@
 #include "crpgs/anchor_model.h"
 #include "crpgs/components.h"
 #include "crpgs/config.h"
+#include "crpgs/scene_generator.h"
 #include "crpgs/trainer.h"
+#include "raster/cpu_rasterizer.h"
 #include "test_registry.h"
 
 namespace crpgs::test {
@@ -67,6 +69,41 @@ inline double quantized_bits_per_param(const AnchorModel& m) {
   bo = (bo * mask.to(bo.dtype())).sum();
   const double n = double(A) * double(q.features.size(1) + 6) + 3.0 * mask.sum().item<double>();
   return (bf + bs + bo).item<double>() / n;
+}
+
+/// The tiny generated scene the rate-path tests train on (32x24, 8 views, 1500 SfM points).
+inline Dataset tiny_scene() {
+  raster::CpuRasterizer r(1);
+  SyntheticSceneOptions o;
+  o.width = 32;
+  o.height = 24;
+  o.views = 8;
+  o.sfm_points = 1500;
+  auto s = generate_scene(o, r);
+  if (!s.ok()) throw StatusError(s.status());
+  return std::move(s).value();
+}
+
+/// Renders `cam` with the training-side model quantised to `q` and with `decoded`; the two must
+/// be identical when decoding is bit-exact. Also returns the quantised render's Gaussian count.
+struct RenderPair {
+  torch::Tensor quantised, decoded;
+  int64_t gaussians = 0;
+};
+inline RenderPair render_quantised_and_decoded(AnchorModel& trained, const QuantizedAttributes& q,
+                                               AnchorModel& decoded, const Camera& cam) {
+  raster::CpuRasterizer r(1);
+  RenderSettings rs;
+  torch::NoGradGuard ng;
+  trained.set_quantized(q);
+  auto a = trained.generate(cam, -1, r, rs, false);
+  RenderPair out;
+  out.quantised = r.render(a.batch, cam, rs).image;
+  out.gaussians = a.batch.means.size(0);
+  trained.clear_quantized();
+  auto b = decoded.generate(cam, -1, r, rs, false);
+  out.decoded = r.render(b.batch, cam, rs).image;
+  return out;
 }
 
 }  // namespace crpgs::test

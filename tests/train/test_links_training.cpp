@@ -37,18 +37,6 @@ class PairLinks final : public ContextModel {
   bool chain_;
 };
 
-Dataset tiny_scene() {
-  raster::CpuRasterizer r(1);
-  SyntheticSceneOptions o;
-  o.width = 32;
-  o.height = 24;
-  o.views = 8;
-  o.sfm_points = 1500;
-  auto s = generate_scene(o, r);
-  if (!s.ok()) throw StatusError(s.status());
-  return std::move(s).value();
-}
-
 // Noise from 10, rate from 22, growth stops at 20, links built at 24 and 27.
 std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<ContextModel> links) {
   at::set_num_threads(1);
@@ -84,7 +72,7 @@ std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<Contex
 
 TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = links_trainer(ds, std::make_shared<PairLinks>());
   ASSERT_TRUE(t->model().has_links());
   for (int it = 1; it <= 30; ++it) {
@@ -146,23 +134,16 @@ TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
 
   auto decoded = model_from_decoded(dec.value(), t->model().options());
   ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
-  raster::CpuRasterizer r(1);
-  RenderSettings rs;
-  const Camera& cam = ds.test.at(0).camera;
-  torch::NoGradGuard ng;
-  t->model().set_quantized(q);
-  auto a = t->model().generate(cam, -1, r, rs, false);
-  auto img_a = r.render(a.batch, cam, rs).image;
-  t->model().clear_quantized();
-  auto b = decoded.value()->generate(cam, -1, r, rs, false);
-  auto img_b = r.render(b.batch, cam, rs).image;
-  EXPECT_GT(a.batch.means.size(0), 0);
-  EXPECT_TRUE(torch::equal(img_a, img_b));
+  const auto img =
+      test::render_quantised_and_decoded(t->model(), q, *decoded.value(), ds.test.at(0).camera);
+  EXPECT_GT(img.gaussians, 0);
+  EXPECT_TRUE(torch::equal(img.quantised, img.decoded))
+      << "max diff " << (img.quantised - img.decoded).abs().max().item<float>();
 }
 
 TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = links_trainer(ds, std::make_shared<PairLinks>());
   AnchorModel& m = t->model();
   ASSERT_TRUE(m.rebuild_links(0).ok());
@@ -194,7 +175,7 @@ TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
 
 TEST(LinksTraining, ChainsAndBadShapesAreRefused) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = links_trainer(ds, std::make_shared<PairLinks>(/*chain=*/true));
   auto st = t->model().rebuild_links(0);
   ASSERT_FALSE(st.ok());
@@ -210,7 +191,7 @@ TEST(LinksTraining, ChainsAndBadShapesAreRefused) {
 
 TEST(LinksTraining, CheckpointKeepsTheLinks) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = links_trainer(ds, std::make_shared<PairLinks>());
   ASSERT_TRUE(t->model().rebuild_links(0).ok());
   const auto state = t->model().state_dict();

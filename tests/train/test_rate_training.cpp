@@ -23,18 +23,6 @@ namespace {
     if (!why.empty()) GTEST_SKIP() << why;                \
   } while (0)
 
-Dataset tiny_scene() {
-  raster::CpuRasterizer r(1);
-  SyntheticSceneOptions o;
-  o.width = 32;
-  o.height = 24;
-  o.views = 8;
-  o.sfm_points = 1500;
-  auto s = generate_scene(o, r);
-  if (!s.ok()) throw StatusError(s.status());
-  return std::move(s).value();
-}
-
 // quant_start 10, rate_start 22; growing from 15 every 5 (on both sides of the boundaries, but
 // not at rate_start itself, so the recomputed bounds can be checked after that step).
 TrainOptions rate_schedule(int iterations) {
@@ -64,7 +52,7 @@ std::unique_ptr<Trainer> rate_trainer(const Dataset& ds, const TrainOptions& to,
 
 TEST(RateTraining, PhasesSwitchAtQuantStartAndRateStart) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = rate_trainer(ds, rate_schedule(28), RateOptions());
   auto context_mlp = [&] { return t->model().context()->parameters().back().detach().clone(); };
   const auto ctx0 = context_mlp();
@@ -107,7 +95,7 @@ TEST(RateTraining, PhasesSwitchAtQuantStartAndRateStart) {
 // Checkpoints carry the context, its optimizer state, the bounds and the noise generator.
 TEST(RateTraining, ResumeInTheRatePhaseEqualsUninterrupted) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   TrainOptions to = rate_schedule(30);
   auto full = rate_trainer(ds, to, RateOptions());
   ASSERT_TRUE(full->train().ok());
@@ -126,7 +114,7 @@ TEST(RateTraining, ResumeInTheRatePhaseEqualsUninterrupted) {
 
 TEST(RateTraining, FrozenBoundsStayAtTheirInitialValue) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   RateOptions ro;
   ro.recompute_bounds = false;
   auto t = rate_trainer(ds, rate_schedule(25), ro);
@@ -139,7 +127,7 @@ TEST(RateTraining, FrozenBoundsStayAtTheirInitialValue) {
 // weight with fewer offsets switched on, than the same run without them.
 TEST(RateTraining, LargeWeightsLowerTheRateAndTheMasks) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   const TrainOptions to = rate_schedule(60);
   auto run = [&](double lambda, double mask_lambda) {
     RateOptions ro;
@@ -234,7 +222,7 @@ namespace {
 // quantised model.
 TEST(RateTraining, BitstreamDecodesToTheQuantisedModel) {
   SKIP_WITHOUT_PLUGINS();
-  Dataset ds = tiny_scene();
+  Dataset ds = test::tiny_scene();
   auto t = rate_trainer(ds, rate_schedule(26), RateOptions());
   for (int it = 0; it < 26; ++it) ASSERT_TRUE(t->step().ok());
 
@@ -263,20 +251,11 @@ TEST(RateTraining, BitstreamDecodesToTheQuantisedModel) {
   EXPECT_TRUE(torch::equal(dec->params.q_f, q.params.q_f));
   auto decoded = model_from_decoded(dec.value(), t->model().options());
   ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
-
-  raster::CpuRasterizer r(1);
-  RenderSettings rs;
-  const Camera& cam = ds.test.at(0).camera;
-  torch::NoGradGuard ng;
-  t->model().set_quantized(q);
-  auto a = t->model().generate(cam, -1, r, rs, false);
-  auto img_a = r.render(a.batch, cam, rs).image;
-  t->model().clear_quantized();
-  auto b = decoded.value()->generate(cam, -1, r, rs, false);
-  auto img_b = r.render(b.batch, cam, rs).image;
-  EXPECT_GT(a.batch.means.size(0), 0);
-  EXPECT_TRUE(torch::equal(img_a, img_b))
-      << "max diff " << (img_a - img_b).abs().max().item<float>();
+  const auto img =
+      test::render_quantised_and_decoded(t->model(), q, *decoded.value(), ds.test.at(0).camera);
+  EXPECT_GT(img.gaussians, 0);
+  EXPECT_TRUE(torch::equal(img.quantised, img.decoded))
+      << "max diff " << (img.quantised - img.decoded).abs().max().item<float>();
 }
 
 }  // namespace
