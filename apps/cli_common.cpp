@@ -30,6 +30,21 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
   return cfg->resolve(registry);
 }
 
+void print_eval(const EvalResult& r) {
+  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
+  char a[32], b[32];
+  for (const auto& v : r.views) {
+    std::snprintf(a, sizeof a, "%.3f", v.psnr);
+    std::snprintf(b, sizeof b, "%.4f", v.ssim);
+    rows.push_back({v.name, a, b});
+  }
+  std::snprintf(a, sizeof a, "%.3f", r.mean_psnr);
+  std::snprintf(b, sizeof b, "%.4f", r.mean_ssim);
+  rows.push_back({"mean", a, b});
+  print_table(rows);
+  std::printf("render time: %.1f ms/view\n", r.seconds_per_view * 1e3);
+}
+
 void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out) {
   std::vector<size_t> width;
   for (const auto& r : rows)

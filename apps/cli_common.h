@@ -32,6 +32,8 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
 
 /// Prints rows as aligned columns (first row is the header).
 void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out = stdout);
+/// Per-view PSNR/SSIM table with the mean, then the render time per view.
+void print_eval(const EvalResult& r);
 
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);

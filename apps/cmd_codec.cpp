@@ -184,17 +184,7 @@ int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::s
   if (!ev.ok()) return report_error(ev.status());
   std::printf("%s: %zu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(), bytes->size(),
               static_cast<long long>(dec->model.voxels.size(0)), decode_s);
-  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
-  char a[32], b[32];
-  for (const auto& v : ev->views) {
-    std::snprintf(a, sizeof a, "%.3f", v.psnr);
-    std::snprintf(b, sizeof b, "%.4f", v.ssim);
-    rows.push_back({v.name, a, b});
-  }
-  std::snprintf(a, sizeof a, "%.3f", ev->mean_psnr);
-  std::snprintf(b, sizeof b, "%.4f", ev->mean_ssim);
-  rows.push_back({"mean", a, b});
-  print_table(rows);
+  print_eval(ev.value());
   return 0;
 }
 

@@ -172,17 +172,7 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
   if (!ev.ok()) return report_error(ev.status());
   std::printf("%s: %zu Gaussians, SH degree %d; %.1f ms/view\n", path.c_str(), ply->size(),
               ply->sh_degree, ev->seconds_per_view * 1e3);
-  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
-  char a[32], b[32];
-  for (const auto& v : ev->views) {
-    std::snprintf(a, sizeof a, "%.3f", v.psnr);
-    std::snprintf(b, sizeof b, "%.4f", v.ssim);
-    rows.push_back({v.name, a, b});
-  }
-  std::snprintf(a, sizeof a, "%.3f", ev->mean_psnr);
-  std::snprintf(b, sizeof b, "%.4f", ev->mean_ssim);
-  rows.push_back({"mean", a, b});
-  print_table(rows);
+  print_eval(ev.value());
   return 0;
 }
 

@@ -44,21 +44,6 @@ class CliProgress final : public ProgressCallback {
   std::string last_extra_;
 };
 
-void print_eval(const EvalResult& r) {
-  std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
-  char a[32], b[32];
-  for (const auto& v : r.views) {
-    std::snprintf(a, sizeof a, "%.3f", v.psnr);
-    std::snprintf(b, sizeof b, "%.4f", v.ssim);
-    rows.push_back({v.name, a, b});
-  }
-  std::snprintf(a, sizeof a, "%.3f", r.mean_psnr);
-  std::snprintf(b, sizeof b, "%.4f", r.mean_ssim);
-  rows.push_back({"mean", a, b});
-  print_table(rows);
-  std::printf("render time: %.1f ms/view\n", r.seconds_per_view * 1e3);
-}
-
 /// Train from a resolved config into `out_dir`; evaluates the test views at the end.
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
                  bool resume) {

@@ -177,4 +177,36 @@ Status read_f32_tensors(coding::ByteReader& r, const std::vector<torch::Tensor>&
   return OkStatus();
 }
 
+void write_state_header(coding::ByteWriter& w, const StateHeader& h) {
+  for (uint8_t m : h.magic) w.put_u8(m);
+  w.put_u16(h.version);
+  w.put_u8(h.binarize ? 1 : 0);
+  for (uint64_t v : h.dims) w.put_varint(v);
+}
+
+Status read_state_header(coding::ByteReader& r, const StateHeader& h) {
+  std::array<uint8_t, 4> magic{};
+  for (auto& m : magic) CRPGS_RETURN_IF_ERROR(r.read_u8(&m));
+  if (magic != h.magic) return r.error(std::string("bad magic (not a ") + h.what + " state)");
+  uint16_t version = 0;
+  CRPGS_RETURN_IF_ERROR(r.read_u16(&version));
+  if (version != h.version)
+    return Status(
+        StatusCode::kUnsupportedVersion,
+        "version " + std::to_string(version) + ", this build reads " + std::to_string(h.version));
+  uint8_t bin = 0;
+  CRPGS_RETURN_IF_ERROR(r.read_u8(&bin));
+  if (bin != (h.binarize ? 1 : 0))
+    return r.error(std::string("stored ") + (bin ? "binary" : "float") +
+                   " parameters, the configured grid is " + (h.binarize ? "binary" : "float"));
+  for (size_t i = 0; i < h.dims.size(); ++i) {
+    uint64_t v = 0;
+    CRPGS_RETURN_IF_ERROR(r.read_varint(&v));
+    if (v != h.dims[i])
+      return r.error(std::string(h.dim_names[i]) + " " + std::to_string(v) +
+                     " does not match the configured " + std::to_string(h.dims[i]));
+  }
+  return OkStatus();
+}
+
 }  // namespace crpgs::hash_grid

@@ -4,6 +4,7 @@
 /// autograd lookup, the rate estimate B_h and the table's coding in a component state.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -66,5 +67,20 @@ void write_f32_tensors(coding::ByteWriter& w, const std::vector<torch::Tensor>& 
 /// Reads tensors shaped like `like` into CPU float tensors; "truncated <what>" when short.
 Status read_f32_tensors(coding::ByteReader& r, const std::vector<torch::Tensor>& like,
                         const std::string& what, std::vector<torch::Tensor>* out);
+
+/// The header of a grid component's state: what it is, how it was configured.
+struct StateHeader {
+  std::array<uint8_t, 4> magic;
+  uint16_t version = 1;
+  bool binarize = true;
+  std::vector<uint64_t> dims;          ///< the component's dimensions, in order
+  std::vector<const char*> dim_names;  ///< named in the error when one differs
+  const char* what = "grid";           ///< e.g. "hash_grid", for "bad magic (not a ... state)"
+};
+/// `magic | u16 version | u8 binarize | varint dims...`.
+void write_state_header(coding::ByteWriter& w, const StateHeader& h);
+/// Reads and checks a header against the configured one: bad magic, another version
+/// (kUnsupportedVersion), binary/float mismatch or a differing dimension is refused by name.
+Status read_state_header(coding::ByteReader& r, const StateHeader& expected);
 
 }  // namespace crpgs::hash_grid

@@ -2,7 +2,6 @@
 /// @brief Context plugin `hash_grid`: HAC's binary multi-resolution hash grid (xyz grid + xy, xz,
 /// yz planes, sign-binarised with a straight-through gradient) followed by the context MLP
 /// `mlp_grid` that predicts the entropy parameters (method.md §2.1, §2.2, §2.5).
-#include <cstring>
 #include <stdexcept>
 
 #include <torch/torch.h>
@@ -23,9 +22,6 @@ const char* schema() {
 )yaml" + hash_grid::binarize_schema_yaml();
   return s.c_str();
 }
-
-constexpr uint8_t kStateMagic[4] = {'H', 'G', 'R', 'D'};
-constexpr uint16_t kStateVersion = 1;
 
 using hash_grid::GridSpec;
 
@@ -77,14 +73,7 @@ class HashGridContext final : public ContextModel {
 
   std::vector<uint8_t> save_state() const override {
     coding::ByteWriter w;
-    for (uint8_t m : kStateMagic) w.put_u8(m);
-    w.put_u16(kStateVersion);
-    w.put_u8(grid_.binarize ? 1 : 0);
-    w.put_varint(uint64_t(spec_.n_entries));
-    w.put_varint(uint64_t(spec_.n_features));
-    w.put_varint(uint64_t(spec_.output_dim()));
-    w.put_varint(uint64_t(hidden_));
-    w.put_varint(uint64_t(width_));
+    hash_grid::write_state_header(w, state_header());
     hash_grid::write_table(w, table_, grid_.binarize);
     hash_grid::write_f32_tensors(w, mlp_tensors());
     return w.take();
@@ -100,36 +89,20 @@ class HashGridContext final : public ContextModel {
   std::vector<torch::Tensor> mlp_tensors() const {
     return {l1_->weight, l1_->bias, l2_->weight, l2_->bias};
   }
+  hash_grid::StateHeader state_header() const {
+    return {{'H', 'G', 'R', 'D'},
+            1,
+            grid_.binarize,
+            {uint64_t(spec_.n_entries), uint64_t(spec_.n_features), uint64_t(spec_.output_dim()),
+             uint64_t(hidden_), uint64_t(width_)},
+            {"table entries", "features per level", "MLP input width", "MLP hidden width",
+             "MLP output width"},
+            "hash_grid"};
+  }
 
   Status load(const std::vector<uint8_t>& bytes) {
     coding::ByteReader r(coding::ByteSpan(bytes), "hash_grid state");
-    uint8_t magic[4];
-    for (auto& m : magic) CRPGS_RETURN_IF_ERROR(r.read_u8(&m));
-    if (std::memcmp(magic, kStateMagic, 4) != 0)
-      return r.error("bad magic (not a hash_grid state)");
-    uint16_t version = 0;
-    CRPGS_RETURN_IF_ERROR(r.read_u16(&version));
-    if (version != kStateVersion)
-      return Status(StatusCode::kUnsupportedVersion, "version " + std::to_string(version) +
-                                                         ", this build reads " +
-                                                         std::to_string(kStateVersion));
-    uint8_t bin = 0;
-    CRPGS_RETURN_IF_ERROR(r.read_u8(&bin));
-    if (bin != (grid_.binarize ? 1 : 0))
-      return r.error(std::string("stored ") + (bin ? "binary" : "float") +
-                     " parameters, the configured grid is " +
-                     (grid_.binarize ? "binary" : "float"));
-    const uint64_t expect[5] = {uint64_t(spec_.n_entries), uint64_t(spec_.n_features),
-                                uint64_t(spec_.output_dim()), uint64_t(hidden_), uint64_t(width_)};
-    const char* names[5] = {"table entries", "features per level", "MLP input width",
-                            "MLP hidden width", "MLP output width"};
-    for (int i = 0; i < 5; ++i) {
-      uint64_t v = 0;
-      CRPGS_RETURN_IF_ERROR(r.read_varint(&v));
-      if (v != expect[i])
-        return r.error(std::string(names[i]) + " " + std::to_string(v) +
-                       " does not match the configured " + std::to_string(expect[i]));
-    }
+    CRPGS_RETURN_IF_ERROR(hash_grid::read_state_header(r, state_header()));
     torch::Tensor table;
     CRPGS_RETURN_IF_ERROR(
         hash_grid::read_table(r, spec_.n_entries, spec_.n_features, grid_.binarize, &table));

@@ -3,7 +3,6 @@
 /// 2-4). f_s = Linear(96 -> D_s)(binary hash grid H_s at the clamped anchor position) is
 /// concatenated before the coded individual feature f_i: f_a = [f_s, f_i]. ratio 0 is plain HAC.
 #include <cmath>
-#include <cstring>
 #include <stdexcept>
 
 #include <torch/torch.h>
@@ -25,9 +24,6 @@ const char* schema() {
       hash_grid::grid_schema_yaml() + hash_grid::binarize_schema_yaml();
   return s.c_str();
 }
-
-constexpr uint8_t kStateMagic[4] = {'S', 'F', 'A', 'G'};
-constexpr uint16_t kStateVersion = 1;
 
 using hash_grid::GridSpec;
 
@@ -97,10 +93,7 @@ class SharedFeatureAggregation final : public FeatureModel {
   std::vector<uint8_t> save_state() const override {
     if (shared_dim_ == 0) return {};
     coding::ByteWriter w;
-    for (uint8_t m : kStateMagic) w.put_u8(m);
-    w.put_u16(kStateVersion);
-    w.put_u8(grid_.binarize ? 1 : 0);
-    for (uint64_t v : dims()) w.put_varint(v);
+    hash_grid::write_state_header(w, state_header());
     hash_grid::write_table(w, table_, grid_.binarize);
     hash_grid::write_f32_tensors(w, linear_tensors());
     return w.take();
@@ -114,39 +107,21 @@ class SharedFeatureAggregation final : public FeatureModel {
   }
 
  private:
-  std::vector<uint64_t> dims() const {
-    return {uint64_t(spec_.n_entries), uint64_t(spec_.n_features), uint64_t(spec_.output_dim()),
-            uint64_t(shared_dim_), uint64_t(coded_dim())};
+  hash_grid::StateHeader state_header() const {
+    return {{'S', 'F', 'A', 'G'},
+            1,
+            grid_.binarize,
+            {uint64_t(spec_.n_entries), uint64_t(spec_.n_features), uint64_t(spec_.output_dim()),
+             uint64_t(shared_dim_), uint64_t(coded_dim())},
+            {"table entries", "features per level", "grid output width", "shared width D_s",
+             "coded width D_i"},
+            "sfa"};
   }
   std::vector<torch::Tensor> linear_tensors() const { return {linear_->weight, linear_->bias}; }
 
   Status load(const std::vector<uint8_t>& bytes) {
     coding::ByteReader r(coding::ByteSpan(bytes), "sfa state");
-    uint8_t magic[4];
-    for (auto& m : magic) CRPGS_RETURN_IF_ERROR(r.read_u8(&m));
-    if (std::memcmp(magic, kStateMagic, 4) != 0) return r.error("bad magic (not an sfa state)");
-    uint16_t version = 0;
-    CRPGS_RETURN_IF_ERROR(r.read_u16(&version));
-    if (version != kStateVersion)
-      return Status(StatusCode::kUnsupportedVersion, "version " + std::to_string(version) +
-                                                         ", this build reads " +
-                                                         std::to_string(kStateVersion));
-    uint8_t bin = 0;
-    CRPGS_RETURN_IF_ERROR(r.read_u8(&bin));
-    if (bin != (grid_.binarize ? 1 : 0))
-      return r.error(std::string("stored ") + (bin ? "binary" : "float") +
-                     " parameters, the configured grid is " +
-                     (grid_.binarize ? "binary" : "float"));
-    const auto expect = dims();
-    const char* names[] = {"table entries", "features per level", "grid output width",
-                           "shared width D_s", "coded width D_i"};
-    for (size_t i = 0; i < expect.size(); ++i) {
-      uint64_t v = 0;
-      CRPGS_RETURN_IF_ERROR(r.read_varint(&v));
-      if (v != expect[i])
-        return r.error(std::string(names[i]) + " " + std::to_string(v) +
-                       " does not match the configured " + std::to_string(expect[i]));
-    }
+    CRPGS_RETURN_IF_ERROR(hash_grid::read_state_header(r, state_header()));
     torch::Tensor table;
     CRPGS_RETURN_IF_ERROR(
         hash_grid::read_table(r, spec_.n_entries, spec_.n_features, grid_.binarize, &table));

@@ -207,9 +207,9 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
                                             const torch::Tensor& base_mu) const {
   auto root = links.index_select(0, rows);  // [S]
   auto is_leaf = root >= 0;
-  if (opt.use_offset_mask) {
-    auto active = (torch::sigmoid(p(i_mask).detach()) > opt.mask_threshold).any(1);
-    is_leaf = is_leaf & active.index_select(0, root.clamp_min(0));
+  if (opt.use_offset_mask) {  // only the roots' masks: this runs every rate-phase iteration
+    auto logits = p(i_mask).detach().index_select(0, root.clamp_min(0));
+    is_leaf = is_leaf & (torch::sigmoid(logits) > opt.mask_threshold).any(1);
   }
   auto leaf_rows = is_leaf.nonzero().squeeze(1);  // [L]
   if (leaf_rows.size(0) == 0) return base_mu;
