@@ -1,8 +1,14 @@
 /// @file cli_common.cpp
 #include "cli_common.h"
 
+#include <ATen/Parallel.h>
+
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
+#include <thread>
+
+#include "crpgs/atomic_file.h"
 
 namespace crpgs::cli {
 
@@ -65,6 +71,90 @@ void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out) {
 int report_error(const Status& st) {
   std::fprintf(stderr, "crpgs: error: %s\n", st.message().c_str());
   return 1;
+}
+
+int effective_threads(int requested) {
+  return requested > 0 ? requested : std::max(1, int(std::thread::hardware_concurrency()));
+}
+
+namespace {
+namespace fs = std::filesystem;
+
+/// The model's config with the thread count and --set applied, re-resolved (a copy: YAML nodes
+/// are shared).
+StatusOr<Config> setup_config(const Config& resolved, const GlobalOptions& g,
+                              const ComponentRegistry& r, int threads) {
+  CRPGS_ASSIGN_OR_RETURN(Config c, Config::from_string(resolved.dump(), "<model config>"));
+  const YAML::Node rast = c.section("rasterizer");
+  if (threads > 0) {
+    CRPGS_RETURN_IF_ERROR(c.apply_override("train.threads=" + std::to_string(threads)));
+    if (!rast || (rast.IsMap() && rast["threads"]))
+      CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.threads=" + std::to_string(threads)));
+  }
+  if (!rast) CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.type=cpu"));
+  for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(c.apply_override(s));
+  return c.resolve(r);
+}
+
+/// Rendering needs the cameras (and ground truth) of the dataset the model was trained on.
+Status check_dataset(const Config& c) {
+  const YAML::Node ds = c.section("dataset");
+  if (!ds || !ds.IsMap()) return OkStatus();
+  const std::string format = ds["format"] ? ds["format"].as<std::string>() : "auto";
+  const std::string path = ds["path"] ? ds["path"].as<std::string>() : "";
+  if (format == "synthetic" || path.empty() || fs::exists(path)) return OkStatus();
+  return Status(StatusCode::kNotFound,
+                "the dataset this model was trained on is absent: " + path +
+                    " (dataset.path of its config); rendering needs its cameras. Point to a copy "
+                    "with --set dataset.path=DIR");
+}
+
+}  // namespace
+
+StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
+                                        const std::string& source, int threads) {
+  ModelSource s;
+  if (threads > 0) at::set_num_threads(threads);
+  const auto t0 = std::chrono::steady_clock::now();
+  Config model_config;
+  const fs::path dir(source);
+  if (fs::is_regular_file(source)) {
+    s.kind = "bitstream";
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
+    s.file_bytes = bytes.size();
+    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
+    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(dec.config));
+    CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
+    model_config = dec.config;
+  } else if (fs::is_regular_file(dir / kDecodedModelFile)) {
+    s.kind = "decoded";
+    CRPGS_ASSIGN_OR_RETURN(model_config,
+                           load_config((dir / "config.yaml").string(), GlobalOptions{}, r));
+    CRPGS_ASSIGN_OR_RETURN(s.decoded,
+                           read_decoded_model((dir / kDecodedModelFile).string(), model_config, r));
+  } else if (fs::is_regular_file(dir / "config.yaml")) {
+    s.kind = "run";
+    CRPGS_ASSIGN_OR_RETURN(model_config,
+                           load_config((dir / "config.yaml").string(), GlobalOptions{}, r));
+  } else {
+    return Status(StatusCode::kNotFound,
+                  source + " is neither a .crpgs file, a `crpgs decode` directory (" +
+                      kDecodedModelFile + ") nor a training run directory (config.yaml)");
+  }
+  s.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, setup_config(model_config, g, r, threads));
+  CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
+  const bool run = s.kind == "run";
+  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{run ? source : "", run}));
+  if (run && s.setup->iteration() == 0)
+    return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
+  if (run && s.setup->model().has_rate()) {
+    auto coded = coded_model_from(s.setup->model(), &s.q);  // only its row order is needed
+    if (!coded.ok()) return coded.status();
+    s.setup->model().set_quantized(s.q);
+    s.quantized = true;
+  }
+  return s;
 }
 
 }  // namespace crpgs::cli

@@ -38,6 +38,39 @@ void print_eval(const EvalResult& r);
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);
 
+/// A --threads value: requested when > 0, else every core.
+int effective_threads(int requested);
+
+/// The model file of a `crpgs decode` directory (next to its config.yaml).
+constexpr const char* kDecodedModelFile = "decoded.pt";
+/// Reads a `crpgs decode` model file with the components of `cfg` (cmd_render.cpp, next to
+/// its writer).
+StatusOr<std::unique_ptr<AnchorModel>> read_decoded_model(const std::string& path,
+                                                          const Config& cfg,
+                                                          const ComponentRegistry& r);
+
+/// A trained model from what the CLI accepts as SOURCE, with the dataset and rasterizer its
+/// config names.
+struct ModelSource {
+  std::string kind;                      ///< "bitstream", "decoded", "run"
+  std::unique_ptr<Trainer> setup;        ///< dataset, rasterizer; the model of a run
+  std::unique_ptr<AnchorModel> decoded;  ///< null for a run
+  /// A run with the rate path renders its quantised rows in the bitstream's canonical order
+  /// (set_quantized(q)), so that it renders and exports exactly as its decoded file.
+  QuantizedAttributes q;
+  bool quantized = false;
+  uint64_t file_bytes = 0;  ///< a bitstream's size
+  double load_seconds = 0;  ///< reading and decoding (not the run's checkpoint)
+  AnchorModel& model() { return decoded ? *decoded : setup->model(); }
+};
+/// Opens a .crpgs bitstream, a `crpgs decode` directory or a training run directory. The model
+/// is built from the model's own config; --set (g.sets) then applies to the config that sets up
+/// the dataset and rasterizer (e.g. dataset.path), which is refused with a message when its
+/// dataset is absent. threads > 0 sets libtorch's threads, train.threads and the rasterizer's
+/// threads; 0 keeps the config's.
+StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
+                                        const std::string& source, int threads);
+
 /// What writing a trained model's bitstream and checking it produced.
 struct BitstreamReport {
   std::string path;

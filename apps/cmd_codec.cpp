@@ -165,25 +165,15 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
 /// Decodes a bitstream and evaluates it on the test views of the dataset its config names.
 int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
   ComponentRegistry r = load_registry(g);
-  auto bytes = read_file_bytes(path);
-  if (!bytes.ok()) return report_error(bytes.status());
-  const auto t0 = std::chrono::steady_clock::now();
-  auto dec = decode_model(bytes.value(), r);
-  if (!dec.ok()) return report_error(dec.status());
-  auto options = model_options_from_config(dec->config);
-  if (!options.ok()) return report_error(options.status());
-  auto model = model_from_decoded(dec.value(), options.value());
-  if (!model.ok()) return report_error(model.status());
-  const double decode_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  // The dataset (and rasterizer) exactly as the config that trained this model set them up.
-  auto setup = setup_training(dec->config, r, SetupOptions{});
-  if (!setup.ok()) return report_error(setup.status());
-  auto ev = evaluate_views(*model.value(), setup.value()->rasterizer(),
-                           setup.value()->dataset().test, png_dir);
+  // The dataset (and rasterizer) as the config that trained this model set them up.
+  auto src = load_model_source(g, r, path, 0);
+  if (!src.ok()) return report_error(src.status());
+  auto ev =
+      evaluate_views(src->model(), src->setup->rasterizer(), src->setup->dataset().test, png_dir);
   if (!ev.ok()) return report_error(ev.status());
-  std::printf("%s: %zu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(), bytes->size(),
-              static_cast<long long>(dec->model.voxels.size(0)), decode_s);
+  std::printf("%s: %llu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(),
+              static_cast<unsigned long long>(src->file_bytes),
+              static_cast<long long>(src->model().num_anchors()), src->load_seconds);
   print_eval(ev.value());
   return 0;
 }

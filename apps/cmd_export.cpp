@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
-#include <thread>
 
 #include "cli_common.h"
 #include "crpgs/atomic_file.h"
@@ -64,52 +63,10 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
   return res;
 }
 
-/// An anchor model (decoded from a .crpgs file, or a run's quantised/trained model) with the
-/// dataset and rasterizer of its config.
-struct Source {
-  std::unique_ptr<Trainer> setup;
-  std::unique_ptr<AnchorModel> decoded;
-  QuantizedAttributes q;
-  bool quantized = false;
-  AnchorModel& model() { return decoded ? *decoded : setup->model(); }
-};
-
-StatusOr<Source> load_source(const GlobalOptions& g, const ComponentRegistry& r,
-                             const std::string& source) {
-  Source s;
-  if (fs::is_regular_file(source)) {
-    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
-    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
-    Config cfg = dec.config;
-    for (const auto& set : g.sets) CRPGS_RETURN_IF_ERROR(cfg.apply_override(set));
-    CRPGS_ASSIGN_OR_RETURN(cfg, cfg.resolve(r));
-    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
-    CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
-    CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{}));
-    return s;
-  }
-  const std::string config_path = (fs::path(source) / "config.yaml").string();
-  if (!fs::is_regular_file(config_path))
-    return Status(StatusCode::kNotFound,
-                  source + " is neither a .crpgs file nor a training run directory (config.yaml)");
-  CRPGS_ASSIGN_OR_RETURN(Config cfg, load_config(config_path, g, r));
-  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{source, true}));
-  if (s.setup->iteration() == 0)
-    return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
-  if (s.setup->model().has_rate()) {  // what the bitstream would hold
-    s.q = s.setup->model().quantize();
-    s.setup->model().set_quantized(s.q);
-    s.quantized = true;
-  }
-  return s;
-}
-
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
                    int degree, int directions, int threads) {
   ComponentRegistry r = load_registry(g);
-  at::set_num_threads(threads > 0 ? threads
-                                  : std::max(1, int(std::thread::hardware_concurrency())));
-  auto src = load_source(g, r, source);
+  auto src = load_model_source(g, r, source, effective_threads(threads));
   if (!src.ok()) return report_error(src.status());
   AnchorModel& model = src->model();
   const Dataset& ds = src->setup->dataset();
@@ -139,16 +96,21 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   auto ply_eval = evaluate_ply(back.value(), src->setup->rasterizer(), ds.test,
                                model.options().effects.background, "");
   if (!ply_eval.ok()) return report_error(ply_eval.status());
-  std::vector<std::vector<std::string>> rows = {{"VIEW", "ANCHOR MODEL PSNR", "EXPORTED PSNR"}};
-  char a[32], b[32];
-  for (size_t i = 0; i < ply_eval->views.size(); ++i) {
-    std::snprintf(a, sizeof a, "%.3f", anchor_eval->views[i].psnr);
-    std::snprintf(b, sizeof b, "%.3f", ply_eval->views[i].psnr);
-    rows.push_back({ply_eval->views[i].name, a, b});
-  }
-  std::snprintf(a, sizeof a, "%.3f", anchor_eval->mean_psnr);
-  std::snprintf(b, sizeof b, "%.3f", ply_eval->mean_psnr);
-  rows.push_back({"mean", a, b});
+  std::vector<std::vector<std::string>> rows = {
+      {"VIEW", "ANCHOR MODEL PSNR", "EXPORTED PSNR", "ANCHOR MODEL SSIM", "EXPORTED SSIM"}};
+  auto row = [&rows](const std::string& name, double pa, double pb, double sa, double sb) {
+    char v[4][32];
+    std::snprintf(v[0], sizeof v[0], "%.3f", pa);
+    std::snprintf(v[1], sizeof v[1], "%.3f", pb);
+    std::snprintf(v[2], sizeof v[2], "%.4f", sa);
+    std::snprintf(v[3], sizeof v[3], "%.4f", sb);
+    rows.push_back({name, v[0], v[1], v[2], v[3]});
+  };
+  for (size_t i = 0; i < ply_eval->views.size(); ++i)
+    row(ply_eval->views[i].name, anchor_eval->views[i].psnr, ply_eval->views[i].psnr,
+        anchor_eval->views[i].ssim, ply_eval->views[i].ssim);
+  row("mean", anchor_eval->mean_psnr, ply_eval->mean_psnr, anchor_eval->mean_ssim,
+      ply_eval->mean_ssim);
   print_table(rows);
   return 0;
 }
@@ -156,8 +118,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
 int import_command(const GlobalOptions& g, const std::string& path, const std::string& config,
                    const std::string& png_dir, int threads) {
   ComponentRegistry r = load_registry(g);
-  at::set_num_threads(threads > 0 ? threads
-                                  : std::max(1, int(std::thread::hardware_concurrency())));
+  at::set_num_threads(effective_threads(threads));
   auto ply = read_ply(path);
   if (!ply.ok()) return report_error(ply.status());
   auto cfg = load_config(config, g, r);

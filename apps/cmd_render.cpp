@@ -9,7 +9,6 @@
 #include <cstring>
 #include <filesystem>
 #include <sstream>
-#include <thread>
 
 #include "cli_common.h"
 #include "crpgs/atomic_file.h"
@@ -25,12 +24,7 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-constexpr const char* kDecodedFile = "decoded.pt";
 constexpr int64_t kDecodedFormat = 1;  // bump when the key set below changes meaning
-
-int effective_threads(int requested) {
-  return requested > 0 ? requested : std::max(1, int(std::thread::hardware_concurrency()));
-}
 
 torch::Tensor bytes_tensor(const std::string& s) {  // [len] uint8
   auto t = torch::empty({int64_t(s.size())}, torch::kUInt8);
@@ -100,7 +94,7 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   fs::create_directories(out_dir, ec);
   if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
   const std::string config_path = (fs::path(out_dir) / "config.yaml").string();
-  const std::string model_path = (fs::path(out_dir) / kDecodedFile).string();
+  const std::string model_path = (fs::path(out_dir) / kDecodedModelFile).string();
   t0 = Clock::now();
   Status st = dec->config.save(config_path);
   if (st.ok()) st = write_decoded(model_path, dec.value());
@@ -121,114 +115,6 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   return 0;
 }
 
-/// A model ready to render with the dataset and rasterizer its config names.
-struct RenderSource {
-  std::string kind;                      ///< "bitstream", "decoded", "run"
-  std::unique_ptr<Trainer> setup;        ///< dataset, rasterizer; the model of a run
-  std::unique_ptr<AnchorModel> decoded;  ///< null for a run
-  double load_seconds = 0;
-  AnchorModel& model() { return decoded ? *decoded : setup->model(); }
-};
-
-/// Applies --set, the thread count, and re-resolves (a copy: YAML nodes are shared).
-StatusOr<Config> render_config(const Config& resolved, const GlobalOptions& g,
-                               const ComponentRegistry& r, int threads) {
-  CRPGS_ASSIGN_OR_RETURN(Config c, Config::from_string(resolved.dump(), "<model config>"));
-  CRPGS_RETURN_IF_ERROR(c.apply_override("train.threads=" + std::to_string(threads)));
-  const YAML::Node rast = c.section("rasterizer");
-  if (!rast || (rast.IsMap() && rast["threads"]))
-    CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.threads=" + std::to_string(threads)));
-  if (!rast) CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.type=cpu"));
-  for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(c.apply_override(s));
-  return c.resolve(r);
-}
-
-/// Rendering needs the cameras (and ground truth) of the dataset the model was trained on.
-Status check_dataset(const Config& c) {
-  const YAML::Node ds = c.section("dataset");
-  if (!ds || !ds.IsMap()) return OkStatus();
-  const std::string format = ds["format"] ? ds["format"].as<std::string>() : "auto";
-  const std::string path = ds["path"] ? ds["path"].as<std::string>() : "";
-  if (format == "synthetic" || path.empty() || fs::exists(path)) return OkStatus();
-  return Status(StatusCode::kNotFound,
-                "the dataset this model was trained on is absent: " + path +
-                    " (dataset.path of its config); rendering needs its cameras. Point to a copy "
-                    "with --set dataset.path=DIR");
-}
-
-StatusOr<std::unique_ptr<AnchorModel>> read_decoded(const std::string& path, const Config& cfg,
-                                                    const ComponentRegistry& r) {
-  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
-  try {
-    torch::serialize::InputArchive ar;
-    ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
-    auto get = [&](const char* key) {
-      torch::Tensor t;  // read() into a defined tensor would resize it in place
-      ar.read(key, t);
-      return t;
-    };
-    if (get("format_version").item<int64_t>() != kDecodedFormat)
-      return Status(StatusCode::kUnsupportedVersion, path + ": unknown decoded-model version");
-    std::map<std::string, torch::Tensor> mlps;
-    std::istringstream names(tensor_bytes(get("mlp_names")));
-    std::string name;
-    for (int64_t i = 0; std::getline(names, name); ++i)
-      mlps[name] = get(("mlp_" + std::to_string(i)).c_str());
-    crpgs_create_args args = create_args_for(cfg);
-    CRPGS_ASSIGN_OR_RETURN(std::shared_ptr<FeatureModel> features,
-                           create_component<FeatureModel>(r, cfg.section("features"), args));
-    const std::string state = tensor_bytes(get("features_state"));
-    std::string err;
-    if (!state.empty() &&
-        !features->load_state(std::vector<uint8_t>(state.begin(), state.end()), &err))
-      return Status(StatusCode::kCorruptBitstream, path + ": feature model state: " + err);
-    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
-    return AnchorModel::from_decoded(options, features, get("positions"), get("features"),
-                                     get("scaling"), get("offsets"), get("offset_masks"), mlps,
-                                     get("bounds"), get("voxel_size").item<double>());
-  } catch (const std::exception& e) {
-    return Status(StatusCode::kCorruptBitstream, "reading " + path + ": " + e.what());
-  }
-}
-
-StatusOr<RenderSource> load_render_source(const GlobalOptions& g, const ComponentRegistry& r,
-                                          const std::string& source, int threads) {
-  RenderSource s;
-  at::set_num_threads(threads);
-  const auto t0 = Clock::now();
-  Config model_config;
-  if (fs::is_regular_file(source)) {
-    s.kind = "bitstream";
-    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
-    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
-    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(dec.config));
-    CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
-    model_config = dec.config;
-  } else if (fs::is_regular_file(fs::path(source) / kDecodedFile)) {
-    s.kind = "decoded";
-    CRPGS_ASSIGN_OR_RETURN(
-        model_config, load_config((fs::path(source) / "config.yaml").string(), GlobalOptions{}, r));
-    CRPGS_ASSIGN_OR_RETURN(
-        s.decoded, read_decoded((fs::path(source) / kDecodedFile).string(), model_config, r));
-  } else if (fs::is_regular_file(fs::path(source) / "config.yaml")) {
-    s.kind = "run";
-    CRPGS_ASSIGN_OR_RETURN(
-        model_config, load_config((fs::path(source) / "config.yaml").string(), GlobalOptions{}, r));
-  } else {
-    return Status(StatusCode::kNotFound,
-                  source + " is neither a .crpgs file, a `crpgs decode` directory (" +
-                      kDecodedFile + ") nor a training run directory (config.yaml)");
-  }
-  s.load_seconds = seconds_since(t0);
-  CRPGS_ASSIGN_OR_RETURN(Config cfg, render_config(model_config, g, r, threads));
-  CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
-  const bool run = s.kind == "run";
-  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{run ? source : "", run}));
-  if (run && s.setup->iteration() == 0)
-    return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
-  return s;
-}
-
 Image to_image(const torch::Tensor& img) {  // [H, W, C] float
   const auto t = img.detach().to(torch::kFloat).contiguous();
   Image im = Image::zeros(int(t.size(1)), int(t.size(0)), int(t.size(2)));
@@ -240,7 +126,7 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
                    const std::string& which, int requested_threads) {
   const int threads = effective_threads(requested_threads);
   ComponentRegistry r = load_registry(g);
-  auto src = load_render_source(g, r, source, threads);
+  auto src = load_model_source(g, r, source, threads);
   if (!src.ok()) return report_error(src.status());
   AnchorModel& model = src->model();
   const Dataset& ds = src->setup->dataset();
@@ -251,14 +137,8 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
   fs::create_directories(out_dir, ec);
   if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
   torch::NoGradGuard no_grad;
-  // A run with the rate path renders its quantised model: the bitstream's rows in its canonical
-  // order, so the pixels equal those of the decoded file (Gaussian order changes blending sums).
-  if (src->kind == "run" && model.has_rate()) {
-    QuantizedAttributes q;
-    auto coded = coded_model_from(model, &q);
-    if (!coded.ok()) return report_error(coded.status());
-    model.set_quantized(q);
-  }
+  // A run with the rate path renders its quantised model (load_model_source): the bitstream's
+  // rows in its canonical order, so the pixels equal those of the decoded file.
   std::printf("%s (%s, %s in %.2f s): %lld anchors; rendering with %d threads\n", source.c_str(),
               src->kind.c_str(), src->kind == "run" ? "loaded" : "decoded", src->load_seconds,
               static_cast<long long>(src->kind == "run" ? model.num_anchors()
@@ -298,6 +178,42 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
 }
 
 }  // namespace
+
+StatusOr<std::unique_ptr<AnchorModel>> read_decoded_model(const std::string& path,
+                                                          const Config& cfg,
+                                                          const ComponentRegistry& r) {
+  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
+  try {
+    torch::serialize::InputArchive ar;
+    ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+    auto get = [&](const char* key) {
+      torch::Tensor t;  // read() into a defined tensor would resize it in place
+      ar.read(key, t);
+      return t;
+    };
+    if (get("format_version").item<int64_t>() != kDecodedFormat)
+      return Status(StatusCode::kUnsupportedVersion, path + ": unknown decoded-model version");
+    std::map<std::string, torch::Tensor> mlps;
+    std::istringstream names(tensor_bytes(get("mlp_names")));
+    std::string name;
+    for (int64_t i = 0; std::getline(names, name); ++i)
+      mlps[name] = get(("mlp_" + std::to_string(i)).c_str());
+    crpgs_create_args args = create_args_for(cfg);
+    CRPGS_ASSIGN_OR_RETURN(std::shared_ptr<FeatureModel> features,
+                           create_component<FeatureModel>(r, cfg.section("features"), args));
+    const std::string state = tensor_bytes(get("features_state"));
+    std::string err;
+    if (!state.empty() &&
+        !features->load_state(std::vector<uint8_t>(state.begin(), state.end()), &err))
+      return Status(StatusCode::kCorruptBitstream, path + ": feature model state: " + err);
+    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
+    return AnchorModel::from_decoded(options, features, get("positions"), get("features"),
+                                     get("scaling"), get("offsets"), get("offset_masks"), mlps,
+                                     get("bounds"), get("voxel_size").item<double>());
+  } catch (const std::exception& e) {
+    return Status(StatusCode::kCorruptBitstream, "reading " + path + ": " + e.what());
+  }
+}
 
 void add_render_commands(CLI::App& app, GlobalOptions& g) {
   static std::string path, out_dir, source, views = "test";
