@@ -35,6 +35,7 @@ class CliProgress final : public ProgressCallback {
     bar_.update(p.iteration, extra);
   }
   void on_checkpoint(int, const std::string&) override {}
+  void on_warning(int, const std::string& message) override { bar_.message("warning: " + message); }
   void finish() { bar_.finish(last_extra_); }
   std::vector<experiments::TracePoint> trace;  ///< held-out PSNR against training time
 

@@ -48,6 +48,12 @@ void ProgressBar::finish(const std::string& extra) {
   finished_ = true;
 }
 
+void ProgressBar::message(const std::string& line) {
+  std::fprintf(out_, "%s%s\n", tty_ ? "\r\033[K" : "", line.c_str());
+  last_draw_ = std::chrono::steady_clock::now() - std::chrono::hours(1);  // redraw next update
+  std::fflush(out_);
+}
+
 void ProgressBar::draw(long done, const std::string& extra, bool final) {
   const double elapsed =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();

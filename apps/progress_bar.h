@@ -16,6 +16,8 @@ class ProgressBar {
   /// `done` units finished; `extra` is shown after the rate (loss, PSNR, ...).
   void update(long done, const std::string& extra = "");
   void finish(const std::string& extra = "");
+  /// Prints a line of its own (warnings) without garbling the bar.
+  void message(const std::string& line);
 
  private:
   void draw(long done, const std::string& extra, bool final);

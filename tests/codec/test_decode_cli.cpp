@@ -4,15 +4,11 @@
 /// encoder's) and identical dequantised tensors; renders of the bitstream, of the decode directory
 /// and of the training run's quantised model are pixel-identical.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <torch/serialize/input-archive.h>
 
 #include <algorithm>
-#include <cstdlib>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
 
+#include "cli_test_util.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/image.h"
@@ -38,37 +34,8 @@ train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
         checkpoint_interval: 0, threads: 1}
 )yaml";
 
-/// Runs the CLI; returns its exit code, its output in *log.
-int run_cli(const std::string& args, const fs::path& log_path, std::string* log) {
-#ifdef CRPGS_CLI_PATH
-  const std::string cmd =
-      std::string("'") + CRPGS_CLI_PATH + "' " + args + " > '" + log_path.string() + "' 2>&1";
-  const int rc = std::system(cmd.c_str());
-  std::ifstream in(log_path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  *log = "$ crpgs " + args + "\n" + ss.str();
-  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-#else
-  (void)args, (void)log_path, (void)log;
-  return -1;
-#endif
-}
-
-std::map<std::string, torch::Tensor> read_archive(const fs::path& path) {
-  auto bytes = read_file_bytes(path.string());
-  EXPECT_TRUE(bytes.ok()) << bytes.status().to_string();
-  std::map<std::string, torch::Tensor> out;
-  if (!bytes.ok()) return out;
-  torch::serialize::InputArchive ar;
-  ar.load_from(reinterpret_cast<const char*>(bytes->data()), bytes->size());
-  for (const auto& k : ar.keys()) {
-    torch::Tensor t;
-    ar.read(k, t);
-    out[k] = t;
-  }
-  return out;
-}
+using test::read_archive;
+using test::run_cli;
 
 std::vector<fs::path> pngs_in(const fs::path& dir) {
   std::vector<fs::path> out;

@@ -2,8 +2,11 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <cmath>
 #include <filesystem>
+#include <functional>
 #include <iostream>
+#include <memory>
 
 #include "crpgs/components.h"
 #include "crpgs/metrics.h"
@@ -169,6 +172,138 @@ TEST(Trainer, StopFlagSavesACheckpointAndCancels) {
   int files = 0;
   for (const auto& e : fs::directory_iterator(to.output_dir)) files += e.is_regular_file();
   EXPECT_EQ(files, 1);
+}
+
+// --- Non-finite values: detected, reported with iteration and group, never checkpointed ---------
+
+torch::Tensor parameter(Trainer& t, const std::string& group) {
+  for (const auto& [name, p] : t.model().named_parameters())
+    if (name == group) return p;
+  ADD_FAILURE() << "no parameter group " << group;
+  return torch::Tensor();
+}
+
+/// Makes the next `*shots` gradients of `param` NaN (-1: all of them).
+struct NanGradient {
+  NanGradient(torch::Tensor param, int* shots) : param_(std::move(param)) {
+    hook_ = param_.register_hook([shots](torch::Tensor g) {
+      if (*shots == 0) return g;
+      if (*shots > 0) --*shots;
+      return torch::full_like(g, NAN);
+    });
+  }
+  ~NanGradient() { param_.remove_hook(hook_); }
+  torch::Tensor param_;
+  unsigned hook_;
+};
+
+struct WarningRecorder : ProgressCallback {
+  std::vector<std::pair<int, std::string>> warnings;
+  std::function<void(int)> at_iteration;
+  std::function<void()> after_warning;
+  void on_iteration(const TrainingProgress& p) override {
+    if (at_iteration) at_iteration(p.iteration);
+  }
+  void on_warning(int it, const std::string& m) override {
+    warnings.emplace_back(it, m);
+    if (after_warning) after_warning();
+  }
+};
+
+TEST(Trainer, NonFiniteGradientIsReportedAndItsUpdateDiscarded) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(20);
+  auto t = trainer(ds, to);
+  for (int i = 0; i < 5; ++i) ASSERT_TRUE(t->step().ok());
+  int shots = 0;
+  NanGradient nan(parameter(*t, "mlp_color.w2"), &shots);
+  std::map<std::string, torch::Tensor> before;
+  for (const auto& kv : t->model().state_dict()) before[kv.first] = kv.second.clone();
+
+  shots = 1;
+  auto r = t->step();
+  ASSERT_EQ(shots, 0);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), StatusCode::kNonFinite);
+  EXPECT_NE(r.status().message().find("iteration 6"), std::string::npos) << r.status().message();
+  EXPECT_NE(r.status().message().find("'mlp_color.w2'"), std::string::npos) << r.status().message();
+  EXPECT_EQ(t->iteration(), 6);  // consumed, nothing updated: parameters, moments, statistics
+  for (const auto& kv : t->model().state_dict())
+    EXPECT_TRUE(torch::equal(kv.second, before.at(kv.first))) << kv.first;
+
+  // train() reports such an iteration, skips it and goes on.
+  WarningRecorder rec;
+  rec.at_iteration = [&](int it) { shots = it == 9 ? 1 : shots; };
+  ASSERT_TRUE(t->train(&rec).ok());
+  ASSERT_EQ(rec.warnings.size(), 1u);
+  EXPECT_EQ(rec.warnings[0].first, 10);
+  EXPECT_NE(rec.warnings[0].second.find("update discarded"), std::string::npos);
+  EXPECT_EQ(t->iteration(), 20);
+  EXPECT_EQ(t->nonfinite_parameter_group(), "");
+}
+
+TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(30);
+  to.seed = 5;
+  to.checkpoint_interval = 10;
+  auto reference = trainer(ds, to);
+  ASSERT_TRUE(reference->train().ok());
+
+  to.output_dir = tmp_dir("nan_rollback");
+  auto t = trainer(ds, to);
+  WarningRecorder rec;
+  bool injected = false;
+  rec.at_iteration = [&](int it) {
+    if (it != 15 || injected) return;
+    injected = true;
+    torch::NoGradGuard no_grad;
+    parameter(*t, "feature")[0].fill_(NAN);  // as if an update had gone wrong
+  };
+  ASSERT_TRUE(t->train(&rec).ok());
+  ASSERT_TRUE(injected);
+  ASSERT_FALSE(rec.warnings.empty());
+  const std::string& last = rec.warnings.back().second;
+  EXPECT_NE(last.find("'feature' is non-finite"), std::string::npos) << last;
+  EXPECT_NE(last.find("rolled back to iteration 10"), std::string::npos) << last;
+  // The replay from the checkpoint is deterministic: the run ends where the clean one does.
+  EXPECT_EQ(t->iteration(), 30);
+  auto a = reference->model().state_dict(), b = t->model().state_dict();
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+}
+
+TEST(Trainer, PersistentNonFiniteGradientsStopWithoutABrokenCheckpoint) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(30);
+  to.checkpoint_interval = 5;
+  to.max_skipped_steps = 2;
+  to.max_rollbacks = 1;
+  to.output_dir = tmp_dir("nan_diverged");
+  auto t = trainer(ds, to);
+  int shots = 0;
+  auto nan = std::make_unique<NanGradient>(parameter(*t, "mlp_opacity.w1"), &shots);
+  WarningRecorder rec;
+  rec.at_iteration = [&](int it) { shots = it == 12 ? -1 : shots; };
+  // A roll-back loads new parameter tensors: keep the fault on them.
+  rec.after_warning = [&]() {
+    nan = std::make_unique<NanGradient>(parameter(*t, "mlp_opacity.w1"), &shots);
+  };
+  Status st = t->train(&rec);
+  ASSERT_EQ(st.code(), StatusCode::kNonFinite) << st.to_string();
+  EXPECT_NE(st.message().find("diverged"), std::string::npos) << st.message();
+  EXPECT_NE(st.message().find("'mlp_opacity.w1'"), std::string::npos) << st.message();
+  EXPECT_NE(st.message().find("last good state is iteration 10"), std::string::npos)
+      << st.message();
+  // Skip, skip -> roll back to 10 -> skip, skip -> give up.
+  EXPECT_EQ(rec.warnings.size(), 3u);
+  auto restored = trainer(ds, to);
+  ASSERT_TRUE(restored->load_checkpoint(t->checkpoint_path()).ok());
+  EXPECT_EQ(restored->iteration(), 10);
+  EXPECT_EQ(restored->nonfinite_parameter_group(), "");
 }
 
 TEST(Trainer, EvaluateWritesPngsAndMetrics) {

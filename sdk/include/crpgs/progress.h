@@ -36,6 +36,9 @@ class ProgressCallback {
   virtual void on_adjust(int iteration, int64_t grown, int64_t pruned, int64_t anchors) {}
   /// Called after a checkpoint was written (atomically) to `path`.
   virtual void on_checkpoint(int iteration, const std::string& path) {}
+  /// Called when an iteration's loss or gradients were not finite (its update is discarded) or
+  /// the trainer rolled back to its last good state; `message` names the iteration and group.
+  virtual void on_warning(int iteration, const std::string& message) {}
 };
 
 /// Flags another thread (a signal handler) may set while the trainer runs.

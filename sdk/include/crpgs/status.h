@@ -22,6 +22,7 @@ enum class StatusCode {
   kNotFound,
   kInternal,
   kCancelled,
+  kNonFinite,  ///< NaN or Inf in a loss, gradient or parameter
 };
 
 const char* status_code_name(StatusCode code);

@@ -58,7 +58,11 @@ struct TrainOptions {
   int eval_interval = 1000;        ///< held-out PSNR every N iterations; 0 = never
   int checkpoint_interval = 5000;  ///< 0 = only on request / at the end
   int threads = 0;                 ///< at::set_num_threads; 0 = all cores
-  std::string output_dir;          ///< checkpoints go to output_dir/checkpoint.pt; "" = none
+  /// Non-finite iterations in a row whose updates are discarded before rolling back to the last
+  /// good state (the last checkpoint, kept in memory), and roll-backs before giving up.
+  int max_skipped_steps = 5;
+  int max_rollbacks = 3;
+  std::string output_dir;  ///< checkpoints go to output_dir/checkpoint.pt; "" = none
 };
 
 struct ViewMetrics {
@@ -106,8 +110,14 @@ class Trainer {
   /// Runs until schedule.iterations (from the current iteration). Writes checkpoints every
   /// checkpoint_interval iterations and at the end (when output_dir is set). When `control->stop`
   /// becomes true, writes a checkpoint and returns kCancelled; `control->save` saves and goes on.
+  /// A non-finite iteration (step() returned kNonFinite) is reported and skipped; after
+  /// max_skipped_steps in a row, or when a parameter itself is non-finite, training rolls back to
+  /// the last checkpointed state and replays from there; after max_rollbacks it returns
+  /// kNonFinite. A state with a non-finite parameter is never checkpointed.
   Status train(ProgressCallback* progress = nullptr, TrainControl* control = nullptr);
-  /// One iteration (iteration() + 1). Returns the loss.
+  /// One iteration (iteration() + 1). Returns the loss, or kNonFinite (naming the iteration and
+  /// the parameter group) when the loss or a gradient is NaN/Inf: then nothing was updated and
+  /// the iteration counts as done.
   StatusOr<double> step();
   int iteration() const { return iteration_; }
 
@@ -117,6 +127,8 @@ class Trainer {
   Status load_checkpoint(const std::string& path);
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
+  /// The first parameter group holding a NaN/Inf, or "" when every parameter is finite.
+  std::string nonfinite_parameter_group() const;
 
   /// Renders the dataset's test views (or `views` when given) and measures them.
   StatusOr<EvalResult> evaluate(const std::string& png_dir = "");
@@ -133,6 +145,10 @@ class Trainer {
 
  private:
   int view_for_iteration(int iteration) const;
+  StatusOr<std::string> serialize_state() const;
+  Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin);
+  /// Remembers the current state as the last good one (and writes it to checkpoint_path()).
+  Status checkpoint(ProgressCallback* progress);
   TrainOptions options_;
   Dataset dataset_;
   std::shared_ptr<Rasterizer> rasterizer_;
@@ -144,6 +160,8 @@ class Trainer {
   double last_l1_ = 0;
   RateReport last_rate_;
   std::vector<torch::Tensor> train_images_;  // [H, W, 3] per train view
+  std::vector<uint8_t> last_good_;           // serialized state of the last checkpoint
+  int last_good_iteration_ = -1;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip

@@ -29,6 +29,8 @@ const char* status_code_name(StatusCode code) {
       return "internal error";
     case StatusCode::kCancelled:
       return "cancelled";
+    case StatusCode::kNonFinite:
+      return "non-finite values";
   }
   return "unknown";
 }

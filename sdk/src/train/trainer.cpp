@@ -198,7 +198,33 @@ StatusOr<double> Trainer::step() {
     if (model_->links().defined()) last_rate_.leaves = (model_->links() >= 0).sum().item<int64_t>();
   }
   auto t3 = Clock::now();
+  const double loss_value = loss.item<double>();
+  auto discard = [&](const std::string& what) {
+    model_->zero_grad();
+    iteration_ = it;
+    return Status(StatusCode::kNonFinite, "iteration " + std::to_string(it) + " (view '" +
+                                              view.camera.name + "'): " + what);
+  };
+  if (!std::isfinite(loss_value)) return discard("the loss is " + std::to_string(loss_value));
   if (loss.requires_grad()) loss.backward();
+  {
+    // One reduction per group and one sync: a NaN/Inf anywhere makes its group's sum non-finite.
+    torch::NoGradGuard no_grad;
+    std::vector<std::string> names;
+    std::vector<torch::Tensor> sums;
+    for (const auto& [name, param] : model_->named_parameters())
+      if (param.grad().defined()) {
+        names.push_back(name);
+        sums.push_back(param.grad().sum().to(torch::kDouble));
+      }
+    if (!sums.empty()) {
+      auto finite = torch::isfinite(torch::stack(sums));
+      if (!finite.all().item<bool>()) {
+        const auto bad = finite.logical_not().nonzero()[0][0].item<int64_t>();
+        return discard("non-finite gradient in parameter group '" + names[size_t(bad)] + "'");
+      }
+    }
+  }
   auto t4 = Clock::now();
   {
     torch::NoGradGuard no_grad;
@@ -225,7 +251,7 @@ StatusOr<double> Trainer::step() {
   last_gaussians_ = ng.batch.means.size(0);
   last_l1_ = l1.item<double>();
   iteration_ = it;
-  return loss.item<double>();
+  return loss_value;
 }
 
 std::string Trainer::checkpoint_path() const {
@@ -233,7 +259,7 @@ std::string Trainer::checkpoint_path() const {
   return (std::filesystem::path(options_.output_dir) / "checkpoint.pt").string();
 }
 
-Status Trainer::save_checkpoint(const std::string& path) const {
+StatusOr<std::string> Trainer::serialize_state() const {
   try {
     torch::serialize::OutputArchive ar;
     for (const auto& kv : model_->state_dict())
@@ -243,26 +269,40 @@ Status Trainer::save_checkpoint(const std::string& path) const {
     ar.write("rng", gen_.get_state());
     std::ostringstream os;
     ar.save_to(os);
-    const auto parent = std::filesystem::path(path).parent_path();
-    if (!parent.empty()) std::filesystem::create_directories(parent);
-    return write_file_atomic(path, os.str());
+    return os.str();
   } catch (const std::exception& e) {
-    return Status(StatusCode::kIoError, "writing checkpoint " + path + ": " + e.what());
+    return Status(StatusCode::kInternal,
+                  std::string("serializing the training state: ") + e.what());
   }
+}
+
+Status Trainer::save_checkpoint(const std::string& path) const {
+  auto bytes = serialize_state();
+  if (!bytes.ok()) return bytes.status();
+  std::error_code ec;
+  const auto parent = std::filesystem::path(path).parent_path();
+  if (!parent.empty()) std::filesystem::create_directories(parent, ec);
+  if (ec)
+    return Status(StatusCode::kIoError, "cannot create " + parent.string() + ": " + ec.message());
+  return write_file_atomic(path, bytes.value());
 }
 
 Status Trainer::load_checkpoint(const std::string& path) {
   auto bytes = read_file_bytes(path);
   if (!bytes.ok()) return bytes.status();
+  return restore_state(bytes.value(), path);
+}
+
+Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::string& origin) {
   try {
     torch::serialize::InputArchive ar;
-    ar.load_from(reinterpret_cast<const char*>(bytes->data()), bytes->size());
+    ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
     std::map<std::string, torch::Tensor> state;
     for (const auto& kv : model_->state_dict()) {
       torch::Tensor t;
       if (!ar.try_read(archive_key("model." + kv.first), t))
         return Status(StatusCode::kCorruptBitstream,
-                      path + ": checkpoint lacks '" + kv.first +
+                      origin + ": checkpoint lacks '" + kv.first +
                           "' (written by a different model configuration?)");
       state[kv.first] = t;
     }
@@ -273,8 +313,31 @@ Status Trainer::load_checkpoint(const std::string& path) {
     ar.read("rng", rng);
     gen_.set_state(rng);
   } catch (const std::exception& e) {
-    return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + path + ": " + e.what());
+    return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + origin + ": " + e.what());
   }
+  return OkStatus();
+}
+
+std::string Trainer::nonfinite_parameter_group() const {
+  torch::NoGradGuard no_grad;
+  for (const auto& [name, param] : model_->named_parameters())
+    if (!torch::isfinite(param).all().item<bool>()) return name;
+  return "";
+}
+
+Status Trainer::checkpoint(ProgressCallback* progress) {
+  const std::string bad = nonfinite_parameter_group();
+  if (!bad.empty())
+    return Status(StatusCode::kNonFinite, "iteration " + std::to_string(iteration_) +
+                                              ": parameter group '" + bad + "' is non-finite");
+  auto bytes = serialize_state();
+  if (!bytes.ok()) return bytes.status();
+  last_good_.assign(bytes->begin(), bytes->end());
+  last_good_iteration_ = iteration_;
+  const std::string path = checkpoint_path();
+  if (path.empty()) return OkStatus();
+  CRPGS_RETURN_IF_ERROR(save_checkpoint(path));
+  if (progress) progress->on_checkpoint(iteration_, path);
   return OkStatus();
 }
 
@@ -321,17 +384,53 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   const View* held_out = !dataset_.test.empty()
                              ? &dataset_.test.front()
                              : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
-  auto checkpoint = [&]() -> Status {
-    const std::string path = checkpoint_path();
-    if (path.empty()) return OkStatus();
-    CRPGS_RETURN_IF_ERROR(save_checkpoint(path));
-    if (progress) progress->on_checkpoint(iteration_, path);
+  // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
+  if (last_good_iteration_ != iteration_) {
+    auto bytes = serialize_state();
+    if (!bytes.ok()) return bytes.status();
+    last_good_.assign(bytes->begin(), bytes->end());
+    last_good_iteration_ = iteration_;
+  }
+  int skipped_in_row = 0, rollbacks = 0;
+  // A non-finite iteration: skip it, or roll back when that is not enough (see train()'s doc).
+  auto recover = [&](const Status& why) -> Status {
+    if (why.code() != StatusCode::kNonFinite) return why;
+    const std::string bad = nonfinite_parameter_group();
+    if (bad.empty() && ++skipped_in_row < options_.max_skipped_steps) {
+      if (progress) progress->on_warning(iteration_, why.message() + "; update discarded");
+      return OkStatus();
+    }
+    const std::string what =
+        why.message() + (bad.empty() ? "" : " (parameter group '" + bad + "' is non-finite)");
+    if (rollbacks >= options_.max_rollbacks || last_good_.empty())
+      return Status(StatusCode::kNonFinite,
+                    "training diverged: " + what + " after " + std::to_string(rollbacks) +
+                        " roll-back(s); the last good state is iteration " +
+                        std::to_string(last_good_iteration_) +
+                        (checkpoint_path().empty() ? std::string()
+                                                   : " (checkpoint " + checkpoint_path() + ")"));
+    ++rollbacks;
+    skipped_in_row = 0;
+    CRPGS_RETURN_IF_ERROR(restore_state(last_good_, "the last good state"));
+    if (progress)
+      progress->on_warning(
+          iteration_, what + "; rolled back to iteration " + std::to_string(last_good_iteration_));
     return OkStatus();
   };
-  while (iteration_ < sc.iterations) {
+  while (true) {
+    if (iteration_ >= sc.iterations) {
+      Status st = checkpoint(progress);
+      if (st.code() != StatusCode::kNonFinite) return st;
+      CRPGS_RETURN_IF_ERROR(recover(st));
+      continue;
+    }
     const int64_t anchors_before = model_->num_anchors();
     auto loss = step();
-    if (!loss.ok()) return loss.status();
+    if (!loss.ok()) {
+      CRPGS_RETURN_IF_ERROR(recover(loss.status()));
+      continue;
+    }
+    skipped_in_row = 0;
     const int it = iteration_;
     if (progress) {
       TrainingProgress p;
@@ -362,19 +461,23 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
       progress->on_iteration(p);
     }
-    if (options_.checkpoint_interval > 0 && it % options_.checkpoint_interval == 0 &&
-        it < sc.iterations)
-      CRPGS_RETURN_IF_ERROR(checkpoint());
-    if (control && control->save.exchange(false)) CRPGS_RETURN_IF_ERROR(checkpoint());
+    if ((options_.checkpoint_interval > 0 && it % options_.checkpoint_interval == 0 &&
+         it < sc.iterations) ||
+        (control && control->save.exchange(false))) {
+      Status st = checkpoint(progress);
+      if (!st.ok()) {
+        CRPGS_RETURN_IF_ERROR(recover(st));
+        continue;
+      }
+    }
     if (control && control->stop.load()) {
-      CRPGS_RETURN_IF_ERROR(checkpoint());
+      CRPGS_RETURN_IF_ERROR(checkpoint(progress));
       return Status(
           StatusCode::kCancelled,
           "training stopped at iteration " + std::to_string(it) +
               (checkpoint_path().empty() ? std::string() : "; checkpoint " + checkpoint_path()));
     }
   }
-  return checkpoint();
 }
 
 StatusOr<EvalResult> Trainer::evaluate(const std::string& png_dir) {

@@ -1,0 +1,109 @@
+/// @file test_kill_resume.cpp
+/// @brief No lost work: `crpgs train` killed with SIGKILL at a random moment leaves either no
+/// checkpoint or a complete one, and `--resume` finishes the run with exactly the state of an
+/// uninterrupted run of the same config.
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <chrono>
+#include <filesystem>
+#include <random>
+#include <thread>
+
+#include "cli_test_util.h"
+
+namespace crpgs {
+namespace {
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+// Plain Scaffold-GS training of a small synthetic scene, a checkpoint every 4 iterations.
+const char* kConfig = R"yaml(
+dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
+          synthetic_points: 1000}
+model: {voxel_size: 0.08}
+rasterizer: {type: cpu, threads: 1}
+train: {schedule: fast, fast_factor: 0.002, iterations: 60, eval_interval: 0,
+        checkpoint_interval: 4, threads: 1, seed: 11}
+)yaml";
+
+int wait_for(pid_t pid, int* status) {
+  while (true) {
+    const pid_t r = waitpid(pid, status, 0);
+    if (r == pid || (r < 0 && errno != EINTR)) return r;
+  }
+}
+
+TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  if (!fs::exists(CRPGS_CLI_PATH))
+    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "kill_resume";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const fs::path cfg = dir / "tiny.yaml";
+  ASSERT_TRUE(write_file_atomic(cfg.string(), std::string(kConfig)).ok());
+
+  std::string log;
+  const auto t0 = Clock::now();
+  ASSERT_EQ(test::run_cli("train -c '" + cfg.string() + "' -o '" + (dir / "ref").string() + "'",
+                          dir / "ref.log", &log),
+            0)
+      << log;
+  const double full_s = std::chrono::duration<double>(Clock::now() - t0).count();
+
+  // Kill at a random moment of the run (seed printed so a failure can be replayed).
+  const unsigned seed = std::random_device{}();
+  std::mt19937 rng(seed);
+  double fraction = std::uniform_real_distribution<double>(0.2, 0.8)(rng);
+  const fs::path run = dir / "run";
+  bool killed = false;
+  for (int attempt = 0; attempt < 4 && !killed; ++attempt, fraction /= 2) {
+    fs::remove_all(run);
+    const pid_t pid =
+        test::spawn_cli({"train", "-c", cfg.string(), "-o", run.string()}, dir / "killed.log");
+    ASSERT_GT(pid, 0);
+    std::this_thread::sleep_for(std::chrono::duration<double>(fraction * full_s));
+    kill(pid, SIGKILL);
+    int status = 0;
+    ASSERT_EQ(wait_for(pid, &status), pid);
+    killed = WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
+    std::printf("seed %u attempt %d: %s after %.2f s of a %.2f s run\n", seed, attempt,
+                killed ? "killed" : "had already finished", fraction * full_s, full_s);
+  }
+  ASSERT_TRUE(killed) << "the run always finished before the kill";
+
+  // What the kill left: no checkpoint yet, or a complete one.
+  int resumed_from = 0;
+  if (fs::exists(run / "checkpoint.pt")) {
+    const auto ckpt = test::read_archive(run / "checkpoint.pt");
+    ASSERT_TRUE(ckpt.count("iteration")) << "checkpoint left by the kill is incomplete";
+    resumed_from = int(ckpt.at("iteration").item<int64_t>());
+    EXPECT_EQ(resumed_from % 4, 0);
+  }
+  ASSERT_EQ(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() + "' --resume",
+                          dir / "resume.log", &log),
+            0)
+      << log;
+  if (resumed_from > 0) {
+    EXPECT_NE(log.find("resumed at iteration " + std::to_string(resumed_from)), std::string::npos)
+        << log;
+  }
+  std::printf("resumed from iteration %d\n", resumed_from);
+
+  const auto a = test::read_archive(dir / "ref" / "checkpoint.pt");
+  const auto b = test::read_archive(run / "checkpoint.pt");
+  ASSERT_FALSE(a.empty());
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_EQ(b.at("iteration").item<int64_t>(), 60);
+  for (const auto& [k, v] : a) {
+    ASSERT_TRUE(b.count(k)) << k;
+    EXPECT_TRUE(torch::equal(v, b.at(k))) << k;
+  }
+#endif
+}
+
+}  // namespace
+}  // namespace crpgs
