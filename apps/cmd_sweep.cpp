@@ -30,6 +30,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.workers = a.jobs > 0 ? a.jobs : spec->workers;
   opt.registry = &registry;
   opt.dry_run = a.dry_run;
+  opt.sweep_size = static_cast<int>(runs.size());
   // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.
   const char* runner = std::getenv("CRPGS_SWEEP_RUNNER");
   opt.runner = runner && *runner ? runner : ex::self_executable();

@@ -285,7 +285,12 @@ TEST(Sweep, DryRunStartsNothing) {
 
 TEST(Sweep, RunOneRunsASingleRun) {
   LocalSweep s("one");
+  std::vector<std::string> lines;
+  s.opt.log = [&](const std::string& line) { lines.push_back(line); };
+  s.opt.sweep_size = int(s.runs.size());
   ASSERT_TRUE(run_one(s.runs[3], s.opt).ok());
+  ASSERT_FALSE(lines.empty());  // tagged with its place in the whole sweep
+  EXPECT_EQ(lines[0].rfind("[4/" + std::to_string(s.runs.size()) + "] ", 0), 0u) << lines[0];
   EXPECT_EQ(run_state(s.runs[3].dir), RunState::kComplete);
   EXPECT_EQ(run_state(s.runs[2].dir), RunState::kPending);
   ASSERT_TRUE(run_one(s.runs[3], s.opt).ok());  // already complete: not run again

@@ -344,7 +344,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     return Status(StatusCode::kInvalidArgument, "sweep: no runner executable");
   SweepSummary sum;
   sum.total = static_cast<int>(runs.size());
-  const std::string n = std::to_string(runs.size());
+  const std::string n = std::to_string(opt.sweep_size > 0 ? size_t(opt.sweep_size) : runs.size());
   std::vector<const SweepRun*> todo;
   for (const auto& r : runs) {
     const RunState st = run_state(r.dir);

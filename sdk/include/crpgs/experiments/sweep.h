@@ -101,6 +101,7 @@ struct ExecOptions {
   const ComponentRegistry* registry =
       nullptr;           ///< to resolve configs; null = write them unresolved
   bool dry_run = false;  ///< print what would run, run nothing
+  int sweep_size = 0;    ///< runs in the whole sweep, for the "[i/n]" tags; 0 = runs given
   std::function<void(const std::string&)> log;  ///< progress lines (default: stdout)
 };
 
