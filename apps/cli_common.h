@@ -3,6 +3,7 @@
 /// and plain-text tables.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -11,6 +12,7 @@
 #include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/config.h"
+#include "crpgs/link_report.h"
 #include "crpgs/registry.h"
 #include "crpgs/trainer.h"
 
@@ -82,6 +84,11 @@ struct BitstreamReport {
   double decoded_psnr = 0;                           ///< the model decoded from the file on disk
   std::vector<std::array<double, 3>> decoded_views;  ///< psnr, ssim, render seconds per view
   std::vector<std::string> view_names;
+  /// With links: leaves at the end of training and leaves coded (links whose leaf or root is
+  /// masked are dropped at encode time), and what the coded links buy.
+  int64_t links_built = -1, links_coded = -1;
+  std::optional<LinkRateReport> link_rate;
+  uint64_t link_side_bytes = 0;  ///< AMSK + LINK on disk
 };
 /// Encodes the trained model (rate path required) to `path` atomically, decodes that file
 /// again, and evaluates both the training-side quantised model and the decoded one on the test

@@ -13,6 +13,26 @@
 
 namespace crpgs::cli {
 
+namespace {
+
+void print_link_rate_report(const LinkRateReport& r, uint64_t side_bytes) {
+  auto per = [](double bits, int64_t n) { return n > 0 ? bits / double(n) : 0.0; };
+  std::printf(
+      "\nCOHS (estimated FEAT bits per anchor): roots %.1f, free %.1f, leaves %.1f "
+      "(%.1f with the base model's mean)\n",
+      per(r.root_bits, r.counts.roots), per(r.free_bits, r.counts.free),
+      per(r.leaf_bits, r.counts.leaves), per(r.leaf_bits_base, r.counts.leaves));
+  const double saved = (r.leaf_bits_base - r.leaf_bits) / 8.0;
+  std::printf(
+      "leaf model saves %.0f B of leaf features (%.1f%%); side information costs %llu B: "
+      "file %+.0f B\nleaf-root cosine similarity of coded features: %.3f\n",
+      saved, r.leaf_bits_base > 0 ? 100.0 * saved * 8.0 / r.leaf_bits_base : 0.0,
+      static_cast<unsigned long long>(side_bytes), double(side_bytes) - saved,
+      r.mean_leaf_root_cosine);
+}
+
+}  // namespace
+
 StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cfg,
                                                     const ComponentRegistry& registry,
                                                     const std::string& path,
@@ -31,6 +51,10 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
   CRPGS_RETURN_IF_ERROR(write_file_atomic(path, enc.bytes));
   rep.encode_seconds = secs(t0);
   rep.estimated_vs_coded_bits = enc.estimated_vs_coded_bits;
+  if (t.model().links().defined()) {
+    rep.links_built = (t.model().links() >= 0).sum().item<int64_t>();
+    rep.links_coded = coded.links.defined() ? count_links(coded.links).leaves : 0;
+  }
 
   // The training-side quantised model, on exactly the rows and steps of the bitstream.
   t.model().set_quantized(q);
@@ -47,6 +71,13 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
                          model_from_decoded(dec, t.model().options()));
   rep.decode_seconds = secs(t0);
   rep.file_bytes = bytes.size();
+  if (dec.model.links.defined()) {
+    CRPGS_ASSIGN_OR_RETURN(
+        rep.link_rate,
+        link_rate_report(dec.model, dec.params, *dec.components.context, *dec.components.entropy));
+    for (const auto& s : dec.sections)
+      if (s.id == "LINK" || s.id == "AMSK") rep.link_side_bytes += s.bytes;
+  }
   rep.sections = dec.sections;
   CRPGS_ASSIGN_OR_RETURN(EvalResult deval,
                          evaluate_views(*decoded, t.rasterizer(), t.dataset().test, png_dir));
@@ -74,6 +105,11 @@ void print_bitstream_report(const BitstreamReport& r) {
                 ec.first, ec.second, ec.first > 0 ? 100.0 * (ec.second / ec.first - 1) : 0.0);
   std::printf("test PSNR: quantised model %.3f dB, decoded from the file %.3f dB\n",
               r.quantized_psnr, r.decoded_psnr);
+  if (r.links_built >= 0)
+    std::printf(
+        "links: %lld at the end of training, %lld coded (the others had a masked leaf or root)\n",
+        static_cast<long long>(r.links_built), static_cast<long long>(r.links_coded));
+  if (r.link_rate) print_link_rate_report(*r.link_rate, r.link_side_bytes);
 }
 
 namespace {
@@ -143,6 +179,13 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
       const double coded = 8.0 * double(s.payload.size());
       std::printf("%s: estimated %.0f bits, coded %.0f bits (%+.2f%%)\n", s.id.c_str(), it->second,
                   coded, it->second > 0 ? 100.0 * (coded / it->second - 1) : 0.0);
+    }
+    if (m.links.defined()) {
+      auto lr =
+          link_rate_report(m, dec->params, *dec->components.context, *dec->components.entropy);
+      if (!lr.ok()) return report_error(lr.status());
+      print_link_rate_report(lr.value(), ct->find("LINK")->file_size +
+                                             (ct->find("AMSK") ? ct->find("AMSK")->file_size : 0));
     }
   }
   return 0;

@@ -9,6 +9,7 @@
 
 #include "crpgs/codec.h"
 #include "crpgs/components.h"
+#include "crpgs/link_report.h"
 #include "crpgs/scene_generator.h"
 #include "crpgs/trainer.h"
 #include "raster/cpu_rasterizer.h"
@@ -131,6 +132,28 @@ TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
   const auto free_rows = (coded->links < 0).nonzero().view(-1);
   EXPECT_TRUE(torch::equal(dec->params.mu_f.index_select(0, free_rows),
                            q.params.mu_f.index_select(0, free_rows)));
+
+  // The COHS report splits exactly the FEAT estimate, and prices the leaves under both means.
+  auto lr =
+      link_rate_report(dec->model, dec->params, *dec->components.context, *dec->components.entropy);
+  ASSERT_TRUE(lr.ok()) << lr.status().to_string();
+  EXPECT_EQ(lr->counts.leaves, lc.leaves);
+  EXPECT_EQ(lr->counts.roots, lc.roots);
+  const double feat =
+      estimated_stream_bits(dec->model, dec->params, *dec->components.entropy).at("FEAT");
+  EXPECT_NEAR(lr->root_bits + lr->free_bits + lr->leaf_bits, feat, 1e-6 * feat);
+  EXPECT_GT(lr->leaf_bits, 0);
+  EXPECT_GT(lr->leaf_bits_base, 0);
+  EXPECT_NE(lr->leaf_bits, lr->leaf_bits_base);
+  EXPECT_GE(lr->mean_leaf_root_cosine, -1.0);
+  EXPECT_LE(lr->mean_leaf_root_cosine, 1.0);
+  CodedModel unlinked = dec->model;
+  unlinked.links = torch::Tensor();
+  EXPECT_EQ(
+      link_rate_report(unlinked, dec->params, *dec->components.context, *dec->components.entropy)
+          .status()
+          .code(),
+      StatusCode::kInvalidArgument);
 
   auto decoded = model_from_decoded(dec.value(), t->model().options());
   ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
