@@ -137,18 +137,23 @@ void write_table(coding::ByteWriter& w, const torch::Tensor& table, bool binariz
 Status read_table(coding::ByteReader& r, int64_t n_entries, int64_t n_features, bool binarize,
                   torch::Tensor* out) {
   const size_t n = size_t(n_entries * n_features);
-  auto table = torch::empty({n_entries, n_features}, torch::kFloat);
-  float* t = table.data_ptr<float>();
+  // The stored bits (or floats) are checked against the bytes present before the table is sized.
+  std::vector<uint8_t> bits;
   if (binarize) {
     uint64_t len = 0;
     CRPGS_RETURN_IF_ERROR(r.read_varint(&len));
     if (len > r.remaining()) return r.error("grid bits longer than the state");
     coding::ByteSpan span;
     CRPGS_RETURN_IF_ERROR(r.read_span(size_t(len), &span));
-    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bits, coding::decode_bernoulli(span, n));
+    CRPGS_ASSIGN_OR_RETURN(bits, coding::decode_bernoulli(span, n));
+  } else if (r.remaining() / 4 < n) {
+    return r.error("truncated grid parameters");
+  }
+  auto table = torch::empty({n_entries, n_features}, torch::kFloat);
+  float* t = table.data_ptr<float>();
+  if (binarize) {
     for (size_t i = 0; i < n; ++i) t[i] = bits[i] ? 1.f : -1.f;
   } else {
-    if (r.remaining() / 4 < n) return r.error("truncated grid parameters");
     for (size_t i = 0; i < n; ++i) CRPGS_RETURN_IF_ERROR(r.read_f32(&t[i]));
   }
   *out = table;
@@ -167,9 +172,9 @@ Status read_f32_tensors(coding::ByteReader& r, const std::vector<torch::Tensor>&
                         const std::string& what, std::vector<torch::Tensor>* out) {
   std::vector<torch::Tensor> result;
   for (const auto& p : like) {
+    if (r.remaining() / 4 < size_t(p.numel())) return r.error("truncated " + what);
     auto c = torch::empty(p.sizes(), torch::kFloat);
     float* d = c.data_ptr<float>();
-    if (r.remaining() / 4 < size_t(c.numel())) return r.error("truncated " + what);
     for (int64_t i = 0; i < c.numel(); ++i) CRPGS_RETURN_IF_ERROR(r.read_f32(&d[i]));
     result.push_back(c);
   }

@@ -155,6 +155,13 @@ GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
     const int axes[3][2] = {{0, 1}, {0, 2}, {1, 2}};  // xy, xz, yz
     for (int64_t r : res2) add(2, axes[plane][0], axes[plane][1], 0, r, log2_2);
   }
+  // A decoder builds the grid from the bitstream's config before reading any table bytes, so a
+  // few config bytes must not be able to ask for gigabytes (HAC's default grid has 2^21 values).
+  if (spec.n_entries > kMaxTableValues / n_features)
+    throw std::invalid_argument("hash_grid: the table would hold " +
+                                std::to_string(spec.n_entries) + " x " +
+                                std::to_string(n_features) + " values, more than the limit of " +
+                                std::to_string(kMaxTableValues));
   return spec;
 }
 

@@ -28,8 +28,12 @@ struct GridSpec {
   int64_t output_dim() const { return int64_t(levels.size()) * n_features; }
 };
 
+/// Most values (rows x features) a grid table may hold: 2^27, 512 MiB as float32.
+inline constexpr int64_t kMaxTableValues = int64_t(1) << 27;
+
 /// The xyz grid (resolutions res3, table 2^log2_3) then the xy, xz and yz planes (res2,
-/// 2^log2_2 each). Throws std::invalid_argument for a resolution < 3 or a log2 outside [3, 30].
+/// 2^log2_2 each). Throws std::invalid_argument for a resolution < 3, a log2 outside [3, 30] or
+/// a table of more than kMaxTableValues values.
 GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
                         const std::vector<int64_t>& res2, int log2_2, int64_t n_features);
 

@@ -55,6 +55,14 @@ Status corrupt(const std::string& msg) {
   return Status(StatusCode::kCorruptBitstream, "bitstream: " + msg);
 }
 
+/// A coding-layer result with the failing section named in its message.
+template <typename T>
+StatusOr<T> in_section(const char* id, StatusOr<T> r) {
+  if (r.ok()) return r;
+  return Status(r.status().code(),
+                std::string("bitstream: section ") + id + ": " + r.status().message());
+}
+
 Bytes to_bytes(const std::vector<uint8_t>& v) {
   return Bytes(v.begin(), v.end());
 }
@@ -420,15 +428,19 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   auto section = [&](const char* id) -> StatusOr<const coding::Section*> {
     const coding::Section* s = ct.find(id);
     if (!s) return corrupt(std::string("missing section ") + id);
-    if (s->component_id == kComponent && s->component_major != kMajor)
-      return Status(StatusCode::kUnsupportedVersion,
-                    std::string("bitstream: section ") + id + " has version " +
-                        std::to_string(s->component_major) + ", this decoder reads " +
-                        std::to_string(kMajor));
     return s;
   };
   DecodeResult out;
-  for (const auto& s : ct.sections) out.sections.push_back({s.id, s.component_id, s.file_size});
+  for (const auto& s : ct.sections) {
+    // Every section this codec writes is version 1.x; another major has another layout.
+    if (s.component_major != kMajor)
+      return Status(StatusCode::kUnsupportedVersion,
+                    "bitstream: section " + s.id + " (" + s.component_id + ") has version " +
+                        std::to_string(s.component_major) + "." +
+                        std::to_string(s.component_minor) + ", this decoder reads " +
+                        std::to_string(kMajor) + ".x");
+    out.sections.push_back({s.id, s.component_id, s.file_size});
+  }
 
   // 1. Config -> components (a plugin the file needs but this machine lacks is named here).
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* conf, section("CONF"));
@@ -463,6 +475,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.feature));
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.scaling));
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.offset));
+  // A later minor version may append fields; this one has none after Q0.
+  if (hs->component_minor <= kMinor && !head.at_end()) return head.error("trailing bytes");
   if (K == 0 || K > kMaxOffsets) return corrupt("HEAD: offsets per anchor " + std::to_string(K));
   if (Dc == 0 || Dc > kMaxCodedDim) return corrupt("HEAD: feature width " + std::to_string(Dc));
   if (uint64_t(c.features->coded_dim()) != Dc || uint64_t(args.n_offsets) != K)
@@ -470,7 +484,10 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   if (chunk == 0 || chunk > kMaxChunk) return corrupt("HEAD: chunk size " + std::to_string(chunk));
   if (!(m.voxel_size > 0) || !std::isfinite(m.voxel_size)) return corrupt("HEAD: bad voxel size");
   for (int a = 0; a < 3; ++a)
-    if (!(bounds[3 + a] > bounds[a])) return corrupt("HEAD: empty bounds");
+    if (!(bounds[3 + a] > bounds[a]) || !std::isfinite(bounds[3 + a] - bounds[a]))
+      return corrupt("HEAD: empty or non-finite bounds");
+  for (double q : {m.q0.feature, m.q0.scaling, m.q0.offset})
+    if (!(q > 0) || !std::isfinite(q)) return corrupt("HEAD: bad quantisation step Q0");
   m.chunk = int64_t(chunk);
   m.bounds = torch::from_blob(bounds, {2, 3}, torch::kFloat).clone();
 
@@ -479,21 +496,27 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   std::vector<coding::Voxel> points;
   if (gs->component_id == "org.crpgs.geometry.raw") {
     m.geometry = "raw";
-    CRPGS_ASSIGN_OR_RETURN(points, coding::decode_voxels_raw(ByteSpan(gs->payload)));
+    CRPGS_ASSIGN_OR_RETURN(points,
+                           in_section("GEOM", coding::decode_voxels_raw(ByteSpan(gs->payload))));
   } else if (gs->component_id == "org.crpgs.geometry.draco") {
-    CRPGS_ASSIGN_OR_RETURN(points, coding::decode_positions(ByteSpan(gs->payload)));
+    CRPGS_ASSIGN_OR_RETURN(points,
+                           in_section("GEOM", coding::decode_positions(ByteSpan(gs->payload))));
   } else {
     return corrupt("GEOM: unknown geometry coding '" + gs->component_id + "'");
   }
   if (points.size() != N)
     return corrupt("GEOM holds " + std::to_string(points.size()) + " anchors, HEAD claims " +
                    std::to_string(N));
-  m.voxels = torch::empty({int64_t(N), 3}, torch::kInt);
-  for (size_t i = 0; i < points.size(); ++i)
-    for (int a = 0; a < 3; ++a) m.voxels[int64_t(i)][a] = points[i][size_t(a)];
+  static_assert(sizeof(coding::Voxel) == 3 * sizeof(int32_t), "Voxel must be 3 packed int32");
+  m.voxels = N ? torch::from_blob(points.data(), {int64_t(N), 3}, torch::kInt).clone()
+               : torch::empty({0, 3}, torch::kInt);
 
   // Links (CRP-GS): the active-anchor mask (checked, not needed) and the link vector.
   m.leaf_residual = leaf_residual_of(out.config);
+  const bool has_amsk = ct.find("AMSK") != nullptr, has_link = ct.find("LINK") != nullptr;
+  if (has_amsk != has_link)
+    return corrupt(std::string("missing section ") + (has_amsk ? "LINK" : "AMSK") +
+                   " (AMSK and LINK are written together)");
   if (const coding::Section* as = ct.find("AMSK")) {
     ByteReader ar(ByteSpan(as->payload), "AMSK");
     uint64_t n0 = 0;
@@ -502,7 +525,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
       return corrupt("AMSK: " + std::to_string(n0) + " anchors");
     coding::ByteSpan rest;
     CRPGS_RETURN_IF_ERROR(ar.read_span(ar.remaining(), &rest));
-    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> am, coding::decode_bernoulli(rest, size_t(n0)));
+    CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> am,
+                           in_section("AMSK", coding::decode_bernoulli(rest, size_t(n0))));
     uint64_t on = 0;
     for (uint8_t b : am) on += b;
     if (on != N)
@@ -511,7 +535,8 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
     m.anchor_mask = torch::from_blob(am.data(), {int64_t(n0)}, torch::kUInt8).to(torch::kBool);
   }
   if (const coding::Section* ls = ct.find("LINK")) {
-    CRPGS_ASSIGN_OR_RETURN(std::vector<int32_t> links, coding::unpack_links(ByteSpan(ls->payload)));
+    CRPGS_ASSIGN_OR_RETURN(std::vector<int32_t> links,
+                           in_section("LINK", coding::unpack_links(ByteSpan(ls->payload))));
     if (links.size() != N)
       return corrupt("LINK holds " + std::to_string(links.size()) + " entries for " +
                      std::to_string(N) + " anchors");
@@ -521,8 +546,9 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   }
 
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* ms, section("OMSK"));
-  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bits,
-                         coding::decode_bernoulli(ByteSpan(ms->payload), size_t(N * K)));
+  CRPGS_ASSIGN_OR_RETURN(
+      std::vector<uint8_t> bits,
+      in_section("OMSK", coding::decode_bernoulli(ByteSpan(ms->payload), size_t(N * K))));
   m.offset_masks =
       torch::from_blob(bits.data(), {int64_t(N), int64_t(K)}, torch::kUInt8).to(torch::kBool);
 
@@ -534,6 +560,9 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   if (const coding::Section* fs = ct.find("FTRS")) {
     if (!c.features->load_state(std::vector<uint8_t>(fs->payload.begin(), fs->payload.end()), &err))
       return corrupt("FTRS: " + err);
+  } else if (!c.features->save_state().empty()) {
+    return corrupt("missing section FTRS (the feature model '" + c.features->type_name() +
+                   "' has a state)");
   }
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* mls, section("MLPS"));
   ByteReader mr(ByteSpan(mls->payload), "MLPS");

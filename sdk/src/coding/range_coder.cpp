@@ -529,6 +529,21 @@ StatusOr<std::vector<int32_t>> ChunkedDecoder::decode_chunk(
 namespace {
 constexpr int kBernoulliPrecision = 16;
 constexpr uint32_t kBernoulliTotal = 1u << kBernoulliPrecision;
+
+/// The most bits a Bernoulli rANS stream of `words` 32-bit words (after its 8-byte state) can
+/// hold with p(1) = f1 / 2^16. Before every step the state x is in [2^31, 2^63); decoding a bit of
+/// frequency f gives x' = x - (2^16 - f)(x >> 16) - start <= x (1 - (2^16 - f) / (2^16 + 2)), so
+/// each bit costs at least delta = -log2(1 - (2^16 - f_max) / (2^16 + 2)) bits of state. The state
+/// starts below 2^63, ends at exactly 2^31 and gains at most 32 + log2(1 + 2^-15) bits per word
+/// read, so n delta <= 32 + 32.0001 words. A count above this cannot decode: it is refused before
+/// anything is sized from it.
+uint64_t max_bernoulli_bits(uint32_t f1, size_t words) {
+  const uint32_t f_max = std::max(f1, kBernoulliTotal - f1);
+  const double d = double(kBernoulliTotal - f_max) / double(kBernoulliTotal + 2);
+  const double delta = -std::log1p(-d) / std::log(2.0);
+  const double n = (32.0 + 32.0001 * double(words)) / delta + 1.0;
+  return n >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : uint64_t(n);
+}
 }  // namespace
 
 StatusOr<Bytes> encode_bernoulli(const std::vector<uint8_t>& bits) {
@@ -574,6 +589,12 @@ StatusOr<std::vector<uint8_t>> decode_bernoulli(ByteSpan stream, size_t expected
   const uint32_t f0 = kBernoulliTotal - f1;
   RansReader rr;
   CRPGS_RETURN_IF_ERROR(rr.init(r.rest()));
+  const size_t words = (r.remaining() - 8) / 4;
+  const uint64_t most = max_bernoulli_bits(f1, words);
+  if (n > most)
+    return r.error("claims " + std::to_string(n) + " bits, but " + std::to_string(r.remaining()) +
+                   " bytes with p(1) = " + std::to_string(f1) + "/65536 code at most " +
+                   std::to_string(most));
   std::vector<uint8_t> out(static_cast<size_t>(n));
   uint64_t x = rr.x;
   for (size_t i = 0; i < out.size(); ++i) {

@@ -36,7 +36,10 @@ StatusOr<Bytes> encode_positions(const std::vector<Voxel>& points);
 
 /// The decoded voxels in canonical Morton order (Draco returns points in its own order, so the
 /// encoder must order every per-anchor attribute with morton_order() too). kCorruptBitstream on a
-/// malformed header, a CRC mismatch, a Draco failure, a wrong point count or duplicates.
+/// malformed header, a CRC mismatch, a Draco failure, a wrong point count or duplicates. Before
+/// Draco runs (it sizes buffers from its own header), the Draco header must be the one
+/// encode_positions() writes, with the same point count, and the count must fit the bytes (at
+/// most 64 points per byte; the kd-tree coder needs about a bit per point even when densest).
 StatusOr<std::vector<Voxel>> decode_positions(ByteSpan bytes);
 
 /// Lossless without a point-cloud codec (the ablation "no anchor-position coding"): the voxels,

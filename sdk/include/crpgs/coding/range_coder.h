@@ -156,8 +156,10 @@ class ChunkedDecoder {
 /// f1 in [1, 2^16 - 1] at precision 16 (p(1) = f1 / 2^16, from the empirical rate) | rANS
 /// stream (absent when n = 0). Values other than 0/1 are refused (kInvalidArgument).
 StatusOr<Bytes> encode_bernoulli(const std::vector<uint8_t>& bits);
-/// expected_n: the bit count the caller knows from its header; a stream holding another count
-/// is refused (kCorruptBitstream) before anything is allocated.
+/// expected_n: the bit count the caller knows from its header; a stream holding another count,
+/// or more bits than its bytes can code at its probability (even a stream of only the likelier
+/// bit costs at least -log2(max(f1, 2^16 - f1) / 2^16) bits of rANS state per bit), is refused
+/// (kCorruptBitstream) before anything is allocated.
 StatusOr<std::vector<uint8_t>> decode_bernoulli(ByteSpan stream, size_t expected_n);
 
 }  // namespace crpgs::coding
