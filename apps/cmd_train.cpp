@@ -13,8 +13,14 @@ namespace {
 namespace fs = std::filesystem;
 
 TrainControl* g_control = nullptr;
-extern "C" void on_sigint(int) {
-  if (g_control) g_control->stop = true;  // the trainer checkpoints and returns
+// SIGINT (Ctrl-C) and SIGTERM (e.g. Slurm at its time limit): checkpoint and stop.
+// SIGUSR1: checkpoint now and go on.
+extern "C" void on_signal(int sig) {
+  if (!g_control) return;
+  if (sig == SIGUSR1)
+    g_control->save = true;
+  else
+    g_control->stop = true;
 }
 
 /// Draws the trainer's reports as a progress bar (TTY) or plain lines (logs).
@@ -22,10 +28,7 @@ class CliProgress final : public ProgressCallback {
  public:
   explicit CliProgress(int total) : bar_("train", total) {}
   void on_iteration(const TrainingProgress& p) override {
-    if (p.has_test_psnr) {
-      last_psnr_ = p.test_psnr;
-      trace.push_back({p.elapsed_seconds, p.iteration, p.test_psnr});
-    }
+    if (p.has_test_psnr) last_psnr_ = p.test_psnr;
     char extra[160];
     std::snprintf(extra, sizeof extra, "loss %.4f  test PSNR %s  anchors %lld  gaussians %lld",
                   p.loss,
@@ -37,7 +40,6 @@ class CliProgress final : public ProgressCallback {
   void on_checkpoint(int, const std::string&) override {}
   void on_warning(int, const std::string& message) override { bar_.message("warning: " + message); }
   void finish() { bar_.finish(last_extra_); }
-  std::vector<experiments::TracePoint> trace;  ///< held-out PSNR against training time
 
  private:
   ProgressBar bar_;
@@ -66,11 +68,12 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
 
   TrainControl control;
   g_control = &control;
-  auto previous = std::signal(SIGINT, on_sigint);
+  const int signals[] = {SIGINT, SIGTERM, SIGUSR1};
+  void (*previous[3])(int);
+  for (int i = 0; i < 3; ++i) previous[i] = std::signal(signals[i], on_signal);
   CliProgress progress(t.options().schedule.iterations);
-  const auto start = std::chrono::steady_clock::now();
   st = t.train(&progress, &control);
-  std::signal(SIGINT, previous);
+  for (int i = 0; i < 3; ++i) std::signal(signals[i], previous[i]);
   g_control = nullptr;
   if (st.code() == StatusCode::kCancelled) {
     std::printf("\ninterrupted: checkpoint written to %s (continue with --resume)\n",
@@ -79,8 +82,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   }
   if (!st.ok()) return report_error(st);
   progress.finish();
-  const double train_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double train_s = t.elapsed_seconds();  // resumed runs included, evaluation excluded
   std::printf("trained %d iterations in %s; checkpoint: %s\n", t.iteration(),
               format_duration(train_s).c_str(), t.checkpoint_path().c_str());
 
@@ -122,7 +124,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(cfg.hash()));
   m.config_hash = hash;
   m.train_seconds = train_s;
-  m.trace = std::move(progress.trace);
+  for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
   m.peak_memory_bytes = experiments::peak_rss_bytes();
   st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
   if (!st.ok()) return report_error(st);

@@ -17,13 +17,14 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-// Plain Scaffold-GS training of a small synthetic scene, a checkpoint every 4 iterations.
+// Plain Scaffold-GS training of a small synthetic scene, a checkpoint every 4 iterations, the
+// held-out PSNR every 10 (its trace must survive the kill too).
 const char* kConfig = R"yaml(
 dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
           synthetic_points: 1000}
 model: {voxel_size: 0.08}
 rasterizer: {type: cpu, threads: 1}
-train: {schedule: fast, fast_factor: 0.002, iterations: 60, eval_interval: 0,
+train: {schedule: fast, fast_factor: 0.002, iterations: 60, eval_interval: 10,
         checkpoint_interval: 4, threads: 1, seed: 11}
 )yaml";
 
@@ -57,7 +58,7 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
   // Kill at a random moment of the run (seed printed so a failure can be replayed).
   const unsigned seed = std::random_device{}();
   std::mt19937 rng(seed);
-  double fraction = std::uniform_real_distribution<double>(0.2, 0.8)(rng);
+  double fraction = std::uniform_real_distribution<double>(0.15, 0.6)(rng);
   const fs::path run = dir / "run";
   bool killed = false;
   for (int attempt = 0; attempt < 4 && !killed; ++attempt, fraction /= 2) {
@@ -100,6 +101,11 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
   EXPECT_EQ(b.at("iteration").item<int64_t>(), 60);
   for (const auto& [k, v] : a) {
     ASSERT_TRUE(b.count(k)) << k;
+    if (k == "elapsed_seconds") continue;  // wall-clock: differs between any two runs
+    if (k == "psnr_trace") {               // [M, 3]: seconds, iteration, PSNR
+      EXPECT_TRUE(torch::equal(v.slice(1, 1), b.at(k).slice(1, 1))) << k;
+      continue;
+    }
     EXPECT_TRUE(torch::equal(v, b.at(k))) << k;
   }
 #endif

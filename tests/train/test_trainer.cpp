@@ -249,6 +249,7 @@ TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   to.schedule = tiny_schedule(30);
   to.seed = 5;
   to.checkpoint_interval = 10;
+  to.eval_interval = 5;
   auto reference = trainer(ds, to);
   ASSERT_TRUE(reference->train().ok());
 
@@ -270,6 +271,10 @@ TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   EXPECT_NE(last.find("rolled back to iteration 10"), std::string::npos) << last;
   // The replay from the checkpoint is deterministic: the run ends where the clean one does.
   EXPECT_EQ(t->iteration(), 30);
+  // The trace was cut back with the roll-back: each evaluated iteration once.
+  ASSERT_EQ(t->psnr_trace().size(), reference->psnr_trace().size());
+  for (size_t i = 0; i < t->psnr_trace().size(); ++i)
+    EXPECT_EQ(t->psnr_trace()[i].iteration, reference->psnr_trace()[i].iteration);
   auto a = reference->model().state_dict(), b = t->model().state_dict();
   ASSERT_EQ(a.size(), b.size());
   for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
@@ -304,6 +309,42 @@ TEST(Trainer, PersistentNonFiniteGradientsStopWithoutABrokenCheckpoint) {
   ASSERT_TRUE(restored->load_checkpoint(t->checkpoint_path()).ok());
   EXPECT_EQ(restored->iteration(), 10);
   EXPECT_EQ(restored->nonfinite_parameter_group(), "");
+}
+
+TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(20);
+  to.eval_interval = 5;
+  to.checkpoint_interval = 0;
+  to.output_dir = tmp_dir("clock");
+  auto first = trainer(ds, to);
+  TrainControl control;
+  Recorder rec;
+  rec.control = &control;
+  rec.stop_at = 10;
+  ASSERT_EQ(first->train(&rec, &control).code(), StatusCode::kCancelled);
+  ASSERT_EQ(first->psnr_trace().size(), 2u);
+  const double spent = first->elapsed_seconds();
+  EXPECT_GT(spent, 0);
+  EXPECT_DOUBLE_EQ(rec.seen.back().elapsed_seconds, spent);
+
+  auto resumed = trainer(ds, to);
+  ASSERT_TRUE(resumed->load_checkpoint(first->checkpoint_path()).ok());
+  EXPECT_EQ(resumed->elapsed_seconds(), spent);
+  ASSERT_EQ(resumed->psnr_trace().size(), 2u);
+  ASSERT_TRUE(resumed->train().ok());
+  const auto& trace = resumed->psnr_trace();
+  ASSERT_EQ(trace.size(), 4u);
+  for (size_t i = 0; i < trace.size(); ++i) {
+    EXPECT_EQ(trace[i].iteration, 5 * int(i + 1));
+    EXPECT_GT(trace[i].psnr, 0);
+    if (i > 0) {
+      EXPECT_GT(trace[i].seconds, trace[i - 1].seconds);
+    }
+  }
+  EXPECT_EQ(trace[1].seconds, first->psnr_trace()[1].seconds);
+  EXPECT_GT(resumed->elapsed_seconds(), spent);
 }
 
 TEST(Trainer, EvaluateWritesPngsAndMetrics) {

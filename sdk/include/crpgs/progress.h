@@ -21,7 +21,7 @@ struct TrainingProgress {
   int64_t anchors = 0;
   int64_t gaussians = 0;             ///< neural Gaussians rendered this iteration
   double iterations_per_second = 0;  ///< over the last report interval
-  double elapsed_seconds = 0;        ///< since this run (or resume) started
+  double elapsed_seconds = 0;        ///< training wall-clock, resumed runs included
   double eta_seconds = 0;
   bool has_rate = false;      ///< rate phase of the rate path: the next field is set
   double bits_per_param = 0;  ///< rate term before lambda (bpp + hash share, method.md §2.5)

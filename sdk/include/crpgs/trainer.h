@@ -78,6 +78,13 @@ struct EvalResult {
   double seconds_per_view = 0;  ///< rendering only
 };
 
+/// Held-out PSNR at a point of training.
+struct PsnrPoint {
+  double seconds = 0;  ///< training wall-clock (all processes of a resumed run, no evaluation)
+  int iteration = 0;
+  double psnr = 0;  ///< dB, the held-out view, 8-bit round trip
+};
+
 /// The rate path's terms of the last iteration (rate phase only; `on` false otherwise).
 struct RateReport {
   bool on = false;
@@ -120,6 +127,10 @@ class Trainer {
   /// the iteration counts as done.
   StatusOr<double> step();
   int iteration() const { return iteration_; }
+  /// Training wall-clock so far, evaluation excluded, summed over resumed runs (checkpointed).
+  double elapsed_seconds() const { return elapsed_; }
+  /// Held-out PSNR every eval_interval iterations since iteration 0 (checkpointed).
+  const std::vector<PsnrPoint>& psnr_trace() const { return psnr_trace_; }
 
   /// Writes everything needed to resume (model, optimizer, statistics, RNG, iteration) via a
   /// temporary file and rename.
@@ -146,7 +157,8 @@ class Trainer {
  private:
   int view_for_iteration(int iteration) const;
   StatusOr<std::string> serialize_state() const;
-  Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin);
+  /// `rollback`: keep the training clock (the time was spent) but take the snapshot's trace.
+  Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin, bool rollback);
   /// Remembers the current state as the last good one (and writes it to checkpoint_path()).
   Status checkpoint(ProgressCallback* progress);
   TrainOptions options_;
@@ -162,6 +174,8 @@ class Trainer {
   std::vector<torch::Tensor> train_images_;  // [H, W, 3] per train view
   std::vector<uint8_t> last_good_;           // serialized state of the last checkpoint
   int last_good_iteration_ = -1;
+  double elapsed_ = 0;
+  std::vector<PsnrPoint> psnr_trace_;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip

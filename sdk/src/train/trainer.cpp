@@ -267,6 +267,14 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("iteration", torch::tensor(int64_t(iteration_), torch::kLong));
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
+    ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
+    auto trace = torch::zeros({int64_t(psnr_trace_.size()), 3}, torch::kDouble);
+    for (size_t i = 0; i < psnr_trace_.size(); ++i) {
+      trace[int64_t(i)][0] = psnr_trace_[i].seconds;
+      trace[int64_t(i)][1] = psnr_trace_[i].iteration;
+      trace[int64_t(i)][2] = psnr_trace_[i].psnr;
+    }
+    ar.write("psnr_trace", trace);
     std::ostringstream os;
     ar.save_to(os);
     return os.str();
@@ -290,10 +298,11 @@ Status Trainer::save_checkpoint(const std::string& path) const {
 Status Trainer::load_checkpoint(const std::string& path) {
   auto bytes = read_file_bytes(path);
   if (!bytes.ok()) return bytes.status();
-  return restore_state(bytes.value(), path);
+  return restore_state(bytes.value(), path, false);
 }
 
-Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::string& origin) {
+Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::string& origin,
+                              bool rollback) {
   try {
     torch::serialize::InputArchive ar;
     ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
@@ -312,6 +321,16 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     iteration_ = int(it.item<int64_t>());
     ar.read("rng", rng);
     gen_.set_state(rng);
+    // Older checkpoints have neither; a roll-back keeps the clock (that time was spent).
+    torch::Tensor elapsed, trace;
+    if (!rollback) elapsed_ = ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
+    psnr_trace_.clear();
+    if (ar.try_read("psnr_trace", trace) && trace.dim() == 2 && trace.size(1) == 3) {
+      auto acc = trace.to(torch::kDouble).contiguous();
+      for (int64_t i = 0; i < acc.size(0); ++i)
+        psnr_trace_.push_back(
+            {acc[i][0].item<double>(), int(acc[i][1].item<double>()), acc[i][2].item<double>()});
+    }
   } catch (const std::exception& e) {
     return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + origin + ": " + e.what());
   }
@@ -392,6 +411,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     last_good_iteration_ = iteration_;
   }
   int skipped_in_row = 0, rollbacks = 0;
+  const double elapsed_at_start = elapsed_;
+  double eval_seconds = 0;
   // A non-finite iteration: skip it, or roll back when that is not enough (see train()'s doc).
   auto recover = [&](const Status& why) -> Status {
     if (why.code() != StatusCode::kNonFinite) return why;
@@ -411,7 +432,7 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
                                                    : " (checkpoint " + checkpoint_path() + ")"));
     ++rollbacks;
     skipped_in_row = 0;
-    CRPGS_RETURN_IF_ERROR(restore_state(last_good_, "the last good state"));
+    CRPGS_RETURN_IF_ERROR(restore_state(last_good_, "the last good state", true));
     if (progress)
       progress->on_warning(
           iteration_, what + "; rolled back to iteration " + std::to_string(last_good_iteration_));
@@ -432,6 +453,17 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     }
     skipped_in_row = 0;
     const int it = iteration_;
+    elapsed_ = elapsed_at_start + seconds_since(start) - eval_seconds;
+    bool has_psnr = false;
+    double psnr = 0;
+    if (held_out && options_.eval_interval > 0 &&
+        (it % options_.eval_interval == 0 || it == sc.iterations)) {
+      const auto te = Clock::now();
+      psnr = view_psnr(*held_out);
+      has_psnr = true;
+      eval_seconds += seconds_since(te);  // the training clock leaves evaluation out
+      psnr_trace_.push_back({elapsed_, it, psnr});
+    }
     if (progress) {
       TrainingProgress p;
       p.iteration = it;
@@ -447,15 +479,12 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
         last_report_it = it;
       }
       p.iterations_per_second = rate;
-      p.elapsed_seconds = seconds_since(start);
+      p.elapsed_seconds = elapsed_;
       p.eta_seconds = rate > 0 ? (sc.iterations - it) / rate : 0;
       p.has_rate = last_rate_.on;
       p.bits_per_param = last_rate_.rate;
-      if (held_out && options_.eval_interval > 0 &&
-          (it % options_.eval_interval == 0 || it == sc.iterations)) {
-        p.has_test_psnr = true;
-        p.test_psnr = view_psnr(*held_out);
-      }
+      p.has_test_psnr = has_psnr;
+      p.test_psnr = psnr;
       if (p.anchors != anchors_before || (it > sc.update_from && it % sc.update_interval == 0))
         progress->on_adjust(it, std::max<int64_t>(0, p.anchors - anchors_before),
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
