@@ -6,6 +6,7 @@
 
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <torch/types.h>
@@ -157,6 +158,7 @@ class Trainer {
  private:
   int view_for_iteration(int iteration) const;
   StatusOr<std::string> serialize_state() const;
+  static Status write_checkpoint(const std::string& path, std::string_view bytes);
   /// `rollback`: keep the training clock (the time was spent) but take the snapshot's trace.
   Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin, bool rollback);
   /// Remembers the current state as the last good one (and writes it to checkpoint_path()).

@@ -210,18 +210,20 @@ StatusOr<double> Trainer::step() {
   {
     // One reduction per group and one sync: a NaN/Inf anywhere makes its group's sum non-finite.
     torch::NoGradGuard no_grad;
-    std::vector<std::string> names;
+    const auto params = model_->named_parameters();
+    std::vector<size_t> with_grad;
     std::vector<torch::Tensor> sums;
-    for (const auto& [name, param] : model_->named_parameters())
-      if (param.grad().defined()) {
-        names.push_back(name);
-        sums.push_back(param.grad().sum().to(torch::kDouble));
+    for (size_t i = 0; i < params.size(); ++i)
+      if (params[i].second.grad().defined()) {
+        with_grad.push_back(i);
+        sums.push_back(params[i].second.grad().sum().to(torch::kDouble));
       }
     if (!sums.empty()) {
       auto finite = torch::isfinite(torch::stack(sums));
       if (!finite.all().item<bool>()) {
-        const auto bad = finite.logical_not().nonzero()[0][0].item<int64_t>();
-        return discard("non-finite gradient in parameter group '" + names[size_t(bad)] + "'");
+        const auto bad = size_t(finite.logical_not().nonzero()[0][0].item<int64_t>());
+        return discard("non-finite gradient in parameter group '" + params[with_grad[bad]].first +
+                       "'");
       }
     }
   }
@@ -268,13 +270,10 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
-    auto trace = torch::zeros({int64_t(psnr_trace_.size()), 3}, torch::kDouble);
-    for (size_t i = 0; i < psnr_trace_.size(); ++i) {
-      trace[int64_t(i)][0] = psnr_trace_[i].seconds;
-      trace[int64_t(i)][1] = psnr_trace_[i].iteration;
-      trace[int64_t(i)][2] = psnr_trace_[i].psnr;
-    }
-    ar.write("psnr_trace", trace);
+    std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
+    for (const auto& p : psnr_trace_)
+      trace.insert(trace.end(), {p.seconds, double(p.iteration), p.psnr});
+    ar.write("psnr_trace", torch::tensor(trace, torch::kDouble).view({-1, 3}));
     std::ostringstream os;
     ar.save_to(os);
     return os.str();
@@ -287,12 +286,16 @@ StatusOr<std::string> Trainer::serialize_state() const {
 Status Trainer::save_checkpoint(const std::string& path) const {
   auto bytes = serialize_state();
   if (!bytes.ok()) return bytes.status();
+  return write_checkpoint(path, bytes.value());
+}
+
+Status Trainer::write_checkpoint(const std::string& path, std::string_view bytes) {
   std::error_code ec;
   const auto parent = std::filesystem::path(path).parent_path();
   if (!parent.empty()) std::filesystem::create_directories(parent, ec);
   if (ec)
     return Status(StatusCode::kIoError, "cannot create " + parent.string() + ": " + ec.message());
-  return write_file_atomic(path, bytes.value());
+  return write_file_atomic(path, bytes);
 }
 
 Status Trainer::load_checkpoint(const std::string& path) {
@@ -355,7 +358,7 @@ Status Trainer::checkpoint(ProgressCallback* progress) {
   last_good_iteration_ = iteration_;
   const std::string path = checkpoint_path();
   if (path.empty()) return OkStatus();
-  CRPGS_RETURN_IF_ERROR(save_checkpoint(path));
+  CRPGS_RETURN_IF_ERROR(write_checkpoint(path, bytes.value()));  // serialized once
   if (progress) progress->on_checkpoint(iteration_, path);
   return OkStatus();
 }
