@@ -1,8 +1,6 @@
 /// @file cli_common.cpp
 #include "cli_common.h"
 
-#include <ATen/Parallel.h>
-
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
@@ -73,10 +71,6 @@ int report_error(const Status& st) {
   return 1;
 }
 
-int effective_threads(int requested) {
-  return requested > 0 ? requested : std::max(1, int(std::thread::hardware_concurrency()));
-}
-
 namespace {
 namespace fs = std::filesystem;
 
@@ -114,7 +108,7 @@ Status check_dataset(const Config& c) {
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads) {
   ModelSource s;
-  if (threads > 0) at::set_num_threads(threads);
+  if (threads > 0) set_compute_threads(threads);
   const auto t0 = std::chrono::steady_clock::now();
   Config model_config;
   const fs::path dir(source);

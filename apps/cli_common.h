@@ -14,6 +14,7 @@
 #include "crpgs/config.h"
 #include "crpgs/link_report.h"
 #include "crpgs/registry.h"
+#include "crpgs/runtime.h"
 #include "crpgs/trainer.h"
 
 namespace crpgs::cli {
@@ -39,9 +40,6 @@ void print_eval(const EvalResult& r);
 
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);
-
-/// A --threads value: requested when > 0, else every core.
-int effective_threads(int requested);
 
 /// The model file of a `crpgs decode` directory (next to its config.yaml).
 constexpr const char* kDecodedModelFile = "decoded.pt";

@@ -66,7 +66,7 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
                    int degree, int directions, int threads) {
   ComponentRegistry r = load_registry(g);
-  auto src = load_model_source(g, r, source, effective_threads(threads));
+  auto src = load_model_source(g, r, source, resolve_threads(threads));
   if (!src.ok()) return report_error(src.status());
   AnchorModel& model = src->model();
   const Dataset& ds = src->setup->dataset();
@@ -118,7 +118,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
 int import_command(const GlobalOptions& g, const std::string& path, const std::string& config,
                    const std::string& png_dir, int threads) {
   ComponentRegistry r = load_registry(g);
-  at::set_num_threads(effective_threads(threads));
+  set_compute_threads(threads);
   auto ply = read_ply(path);
   if (!ply.ok()) return report_error(ply.status());
   auto cfg = load_config(config, g, r);

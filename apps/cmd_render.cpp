@@ -83,7 +83,7 @@ Status write_decoded(const std::string& path, const DecodeResult& d) {
 int decode_command(const GlobalOptions& g, const std::string& path, const std::string& out_dir,
                    int threads) {
   ComponentRegistry r = load_registry(g);
-  at::set_num_threads(effective_threads(threads));
+  set_compute_threads(threads);
   auto t0 = Clock::now();
   auto bytes = read_file_bytes(path);
   if (!bytes.ok()) return report_error(bytes.status());
@@ -124,7 +124,7 @@ Image to_image(const torch::Tensor& img) {  // [H, W, C] float
 
 int render_command(const GlobalOptions& g, const std::string& source, const std::string& out_dir,
                    const std::string& which, int requested_threads) {
-  const int threads = effective_threads(requested_threads);
+  const int threads = resolve_threads(requested_threads);
   ComponentRegistry r = load_registry(g);
   auto src = load_model_source(g, r, source, threads);
   if (!src.ok()) return report_error(src.status());

@@ -85,6 +85,15 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   const double train_s = t.elapsed_seconds();  // resumed runs included, evaluation excluded
   std::printf("trained %d iterations in %s; checkpoint: %s\n", t.iteration(),
               format_duration(train_s).c_str(), t.checkpoint_path().c_str());
+  if (const StepTimes& tm = t.times(); tm.iterations > 0) {
+    // This process's iterations only (a resumed run's earlier processes are not in it).
+    const double ms = 1e3 / tm.iterations;
+    std::printf(
+        "time per iteration over %d iterations: MLPs %.1f ms, raster %.1f ms, loss+rate %.1f ms, "
+        "backward %.1f ms, optimizer+densify %.1f ms\n",
+        tm.iterations, tm.generate * ms, tm.render * ms, tm.loss * ms, tm.backward * ms,
+        tm.optimizer * ms);
+  }
 
   experiments::RunMetrics m;
   if (t.model().has_rate()) {

@@ -10,9 +10,9 @@
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
-#include <thread>
 
 #include "crpgs/components.h"
+#include "crpgs/runtime.h"
 #include "crpgs/trainer.h"
 #include "raster/cpu_rasterizer.h"
 
@@ -54,7 +54,7 @@ std::unique_ptr<Trainer> make_fern_trainer(benchmark::State& state) {
 }
 
 void BM_TrainFern(benchmark::State& state) {
-  at::set_num_threads(int(std::thread::hardware_concurrency()));
+  set_compute_threads(0);
   auto t = make_fern_trainer(state);
   if (!t) return;
   const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));

@@ -78,6 +78,21 @@ TEST(HashGridKernels, ForwardMatchesReferenceFloat32HacLayout) {
   EXPECT_LE(out.abs().max().item<float>(), 1.0f + 1e-5f);  // convex combination of ±1
 }
 
+TEST(HashGridKernels, BinarizedForwardEqualsForwardOfTheSignTableBitForBit) {
+  // The binarised forward reads packed sign bits; it must round exactly like reading ±1 floats
+  // (encoder and decoder of existing files depend on it). Zeros and NaN: HAC's sign is +1 for
+  // x >= 0 and -1 otherwise (NaN included).
+  const GridSpec s = hac_spec();
+  const auto pos = random_positions(2000, torch::kFloat, 3);
+  auto table = torch::empty({s.n_entries, s.n_features}).uniform_(-1e-4, 1e-4);
+  table.index_put_({torch::indexing::Slice(0, 64)}, 0.0f);
+  table.index_put_({torch::indexing::Slice(64, 72)}, std::nanf(""));
+  const auto packed = hash_grid::grid_forward(s, pos, table, true);
+  const auto floats = hash_grid::grid_forward(s, pos, hash_grid::binarize_values(table), false);
+  EXPECT_TRUE(torch::equal(packed, floats));
+  EXPECT_GT(packed.abs().max().item<float>(), 0.5f);
+}
+
 TEST(HashGridKernels, BackwardMatchesReferenceWithStraightThroughMask) {
   const GridSpec s = small_spec();
   const auto pos = random_positions(2000, torch::kDouble, 3);

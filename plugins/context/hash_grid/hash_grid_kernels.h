@@ -19,6 +19,7 @@ struct GridLevel {
   int64_t offset = 0;       ///< first table entry of the level
   int64_t size = 0;         ///< entries: min(2^log2, res^dim) rounded up to a multiple of 8
   bool dense = false;       ///< res^dim <= size: index g_x + g_y res + g_z res^2, else hashed
+                            ///< (then size = 2^log2)
 };
 
 struct GridSpec {

@@ -2,8 +2,6 @@
 /// @brief encode_model / decode_model: the anchor-model bitstream described in codec.h.
 #include "crpgs/codec.h"
 
-#include <dlfcn.h>
-
 #include <functional>
 
 #include <torch/torch.h>
@@ -13,6 +11,7 @@
 #include "crpgs/coding/geometry.h"
 #include "crpgs/coding/range_coder.h"
 #include "crpgs/components.h"
+#include "crpgs/runtime.h"
 
 namespace crpgs {
 namespace {
@@ -26,30 +25,6 @@ constexpr const char* kComponent = "org.crpgs.codec.anchor_model";
 constexpr uint16_t kMajor = 1, kMinor = 0;
 // Sanity limits for counts read from a file (refused before anything is allocated).
 constexpr uint64_t kMaxOffsets = 64, kMaxCodedDim = 4096, kMaxChunk = 1 << 20;
-
-/// Entropy parameters must come out bit-identical in encoder and decoder: predict them with one
-/// thread in torch and in OpenBLAS (whose small-matrix kernels may otherwise differ by shape).
-class SingleThreaded {
- public:
-  SingleThreaded() : torch_threads_(at::get_num_threads()) {
-    at::set_num_threads(1);
-    blas_set_ = reinterpret_cast<void (*)(int)>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-    auto get = reinterpret_cast<int (*)()>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
-    if (blas_set_ && get) {
-      blas_threads_ = get();
-      blas_set_(1);
-    }
-  }
-  ~SingleThreaded() {
-    at::set_num_threads(torch_threads_);
-    if (blas_set_ && blas_threads_ > 0) blas_set_(blas_threads_);
-  }
-
- private:
-  int torch_threads_;
-  void (*blas_set_)(int) = nullptr;
-  int blas_threads_ = 0;
-};
 
 Status corrupt(const std::string& msg) {
   return Status(StatusCode::kCorruptBitstream, "bitstream: " + msg);
@@ -165,7 +140,6 @@ EntropyParams map_params(const EntropyParams& p,
 EntropyParams base_params(const CodedModel& m, const CodingPlan& plan, ContextModel& context,
                           int64_t coded_dim) {
   torch::NoGradGuard no_grad;
-  SingleThreaded one_thread;
   const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
                          .index_select(0, plan.order);
   const EntropyParamLayout layout{coded_dim, m.offset_masks.size(1)};
@@ -181,7 +155,7 @@ Status apply_leaf_means(const CodedModel& m, const CodingPlan& plan, const LeafM
   if (leaves == 0) return OkStatus();
   if (!mlp.defined()) return corrupt("the model has leaves but no leaf MLP");
   torch::NoGradGuard no_grad;
-  SingleThreaded one_thread;
+  ScopedComputeThreads one_thread(1);  // as in predict_entropy_params: bit-identical parameters
   const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
                          .index_select(0, plan.order);
   for (int64_t s = 0; s < leaves; s += m.chunk) {

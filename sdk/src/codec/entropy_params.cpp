@@ -3,6 +3,8 @@
 
 #include <torch/torch.h>
 
+#include "crpgs/runtime.h"
+
 namespace crpgs {
 
 EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamLayout& layout,
@@ -28,6 +30,9 @@ EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor&
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
                                      int64_t chunk) {
   TORCH_CHECK(chunk > 0, "chunk must be positive");
+  // Encoder, decoder and the training-side quantised model must get bit-identical parameters:
+  // one thread in torch and in OpenBLAS, whose kernels may otherwise split sums by thread count.
+  ScopedComputeThreads one_thread(1);
   std::vector<torch::Tensor> outs;
   for (int64_t s = 0; s < positions01.size(0); s += chunk)
     outs.push_back(

@@ -6,4 +6,5 @@ list(APPEND CRPGS_BASE_SOURCES
   src/core/registry.cpp
   src/core/atomic_file.cpp)
 list(APPEND CRPGS_TORCH_SOURCES
-  src/core/components.cpp)
+  src/core/components.cpp
+  src/core/runtime.cpp)        # thread pools (torch + OpenBLAS), allocator

@@ -15,11 +15,11 @@
 #include <numeric>
 #include <random>
 #include <sstream>
-#include <thread>
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
 #include "crpgs/metrics.h"
+#include "crpgs/runtime.h"
 #include "crpgs/scene_generator.h"
 
 namespace crpgs {
@@ -740,11 +740,9 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(TrainOptions train_options, train_options_from_config(resolved));
   CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions model_options, model_options_from_config(resolved));
   train_options.output_dir = setup.output_dir;
-  // 2. Threads: libtorch starts with one here.
-  const int threads = train_options.threads > 0
-                          ? train_options.threads
-                          : std::max(1, int(std::thread::hardware_concurrency()));
-  at::set_num_threads(threads);
+  // 2. Threads (libtorch starts with one here) and the allocator.
+  set_compute_threads(train_options.threads);
+  keep_freed_memory_in_heap();
   // 3. Components: rasterizer and feature model from the registry.
   crpgs_create_args args = create_args_for(resolved);
   auto block = [&](const char* key, const char* type) {
@@ -810,7 +808,7 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
       o.test_every = get(d, "test_every", 8);
       o.max_images = get(d, "max_images", 0);
       o.background = model_options.effects.background;
-      o.threads = threads;
+      o.threads = resolve_threads(train_options.threads);
       CRPGS_ASSIGN_OR_RETURN(dataset, load_dataset(o));
     }
   } catch (const YAML::Exception& e) {

@@ -1,0 +1,36 @@
+/// @file runtime.h
+/// @brief Process-wide settings for compute: the thread pools (libtorch's intra-op pool and
+/// OpenBLAS's, set together: an OpenBLAS pool left at every core beside a 1-thread torch spins
+/// its workers in sched_yield, and two such runs on two cores lose a fifth of their speed) and
+/// the allocator.
+#pragma once
+
+namespace crpgs {
+
+/// `requested` if > 0, else every core of the machine.
+int resolve_threads(int requested);
+
+/// Sets libtorch's intra-op threads and OpenBLAS's threads (when OpenBLAS is the BLAS) to
+/// resolve_threads(requested).
+void set_compute_threads(int requested);
+
+/// Sets both pools for a scope and restores what they were.
+class ScopedComputeThreads {
+ public:
+  explicit ScopedComputeThreads(int requested);
+  ~ScopedComputeThreads();
+  ScopedComputeThreads(const ScopedComputeThreads&) = delete;
+  ScopedComputeThreads& operator=(const ScopedComputeThreads&) = delete;
+
+ private:
+  int torch_threads_;
+  int blas_threads_;
+};
+
+/// Keeps freed memory in the heap instead of returning it to the kernel: glibc otherwise maps
+/// every block over 32 MiB anew and unmaps it on free, so each training iteration page-faults
+/// its large tensors in again (~25k faults/s on fern, 14 % of the time in this VM). Memory
+/// stays at the peak of one iteration. Idempotent; setup_training calls it.
+void keep_freed_memory_in_heap();
+
+}  // namespace crpgs
