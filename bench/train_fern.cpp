@@ -4,6 +4,11 @@
 //
 // Env: CRPGS_BENCH_WARMUP (iterations before timing, default 600: past the start of anchor
 // growing, so the anchor count is representative), CRPGS_BENCH_VOXEL (default 0.01).
+//
+// BM_TrainRun times any phase of any config: CRPGS_BENCH_RUN=RUN_DIR resumes that run's
+// checkpoint (RUN_DIR/config.yaml + checkpoint.pt, e.g. a sweep run past rate_start) and times
+// CRPGS_BENCH_STEPS iterations (default 30) from there; nothing is written to RUN_DIR. Run from
+// the directory the run was trained from (its dataset.path may be relative to it).
 #include <benchmark/benchmark.h>
 #include <torch/torch.h>
 
@@ -12,6 +17,7 @@
 #include <filesystem>
 
 #include "crpgs/components.h"
+#include "crpgs/registry.h"
 #include "crpgs/runtime.h"
 #include "crpgs/trainer.h"
 #include "raster/cpu_rasterizer.h"
@@ -53,21 +59,17 @@ std::unique_ptr<Trainer> make_fern_trainer(benchmark::State& state) {
   return std::move(t).value();
 }
 
-void BM_TrainFern(benchmark::State& state) {
-  set_compute_threads(0);
-  auto t = make_fern_trainer(state);
-  if (!t) return;
-  const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));
-  for (int i = 0; i < warmup; ++i) (void)t->step();
-  const StepTimes before = t->times();
+/// Times the benchmark's iterations and reports it/s, the per-stage split and the model size.
+void time_steps(benchmark::State& state, Trainer& t) {
+  const StepTimes before = t.times();
   for (auto _ : state) {
-    auto loss = t->step();
+    auto loss = t.step();
     benchmark::DoNotOptimize(loss);
   }
-  const StepTimes& after = t->times();
+  const StepTimes& after = t.times();
   const double n = after.iterations - before.iterations;
-  state.counters["anchors"] = double(t->model().num_anchors());
-  state.counters["gaussians"] = double(t->last_gaussian_count());
+  state.counters["anchors"] = double(t.model().num_anchors());
+  state.counters["gaussians"] = double(t.last_gaussian_count());
   state.counters["ms_mlp_fwd"] = 1e3 * (after.generate - before.generate) / n;
   state.counters["ms_raster_fwd"] = 1e3 * (after.render - before.render) / n;
   state.counters["ms_loss_fwd"] = 1e3 * (after.loss - before.loss) / n;
@@ -75,6 +77,15 @@ void BM_TrainFern(benchmark::State& state) {
   state.counters["ms_optimizer"] = 1e3 * (after.optimizer - before.optimizer) / n;
   state.counters["it_per_s"] =
       benchmark::Counter(double(state.iterations()), benchmark::Counter::kIsRate);
+}
+
+void BM_TrainFern(benchmark::State& state) {
+  set_compute_threads(0);
+  auto t = make_fern_trainer(state);
+  if (!t) return;
+  const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));
+  for (int i = 0; i < warmup; ++i) (void)t->step();
+  time_steps(state, *t);
   // Backward split: the rasterizer's backward alone on the current Gaussians (detached leaves).
   const View& v = t->dataset().train.front();
   RenderSettings rs;
@@ -95,6 +106,33 @@ void BM_TrainFern(benchmark::State& state) {
   state.counters["ms_raster_bwd"] = 1e3 * bwd / 5;
 }
 BENCHMARK(BM_TrainFern)->Unit(benchmark::kMillisecond)->Iterations(100);
+
+void BM_TrainRun(benchmark::State& state) {
+  const char* dir = std::getenv("CRPGS_BENCH_RUN");
+  if (!dir) {
+    state.SkipWithError("set CRPGS_BENCH_RUN=RUN_DIR (a run with config.yaml + checkpoint.pt)");
+    return;
+  }
+  ComponentRegistry registry = builtin_registry();
+  registry.load_plugins(default_plugin_dirs({}));
+  auto cfg = Config::load_file(std::string(dir) + "/config.yaml");
+  auto resolved = cfg.ok() ? cfg->resolve(registry) : cfg;
+  if (!resolved.ok()) {
+    state.SkipWithError(resolved.status().to_string().c_str());
+    return;
+  }
+  // resume reads RUN_DIR/checkpoint.pt; the benchmark calls step() only, which writes nothing.
+  auto t = setup_training(resolved.value(), registry, SetupOptions{dir, true});
+  if (!t.ok()) {
+    state.SkipWithError(t.status().to_string().c_str());
+    return;
+  }
+  state.counters["from_iteration"] = double(t.value()->iteration());
+  time_steps(state, *t.value());
+}
+BENCHMARK(BM_TrainRun)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(int64_t(env_or("CRPGS_BENCH_STEPS", 30)));
 
 }  // namespace
 
