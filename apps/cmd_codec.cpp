@@ -7,7 +7,6 @@
 #include "cli_common.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
-#include "crpgs/coding/bit_packing.h"
 #include "crpgs/coding/bitstream.h"
 #include "crpgs/trainer.h"
 
@@ -142,20 +141,23 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   }
   print_table(cats);
   if (const coding::Section* ls = ct->find("LINK")) {
-    // COHS side information (method.md §6.4): the active-anchor mask and the link vector.
+    // COHS side information (method.md §6.4): the link vector (and the paper's active-anchor mask).
     const coding::Section* as = ct->find("AMSK");
     const uint64_t side = ls->file_size + (as ? as->file_size : 0);
-    auto links = coding::unpack_links(coding::ByteSpan(ls->payload));
+    auto links = link_vector_of(*ls);
     if (!links.ok()) return report_error(links.status());
     const auto lc =
         count_links(torch::from_blob(links->data(), {int64_t(links->size())}, torch::kInt).clone());
-    std::printf(
-        "\nCOHS side information: mask %llu B + link vector %llu B = %llu B (%.2f%% of the "
-        "file)\nanchors: %lld roots, %lld leaves, %lld free\n",
-        static_cast<unsigned long long>(as ? as->file_size : 0),
-        static_cast<unsigned long long>(ls->file_size), static_cast<unsigned long long>(side),
-        100.0 * double(side) / total, static_cast<long long>(lc.roots),
-        static_cast<long long>(lc.leaves), static_cast<long long>(lc.free));
+    if (as)
+      std::printf("\nCOHS side information (paper coding): mask %llu B + link vector %llu B",
+                  static_cast<unsigned long long>(as->file_size),
+                  static_cast<unsigned long long>(ls->file_size));
+    else
+      std::printf("\nCOHS side information (compact coding): link vector");
+    std::printf(" = %llu B (%.2f%% of the file)\nanchors: %lld roots, %lld leaves, %lld free\n",
+                static_cast<unsigned long long>(side), 100.0 * double(side) / total,
+                static_cast<long long>(lc.roots), static_cast<long long>(lc.leaves),
+                static_cast<long long>(lc.free));
   }
   if (verbose) {
     // Decoding checks every section and rebuilds the components from the stored config.

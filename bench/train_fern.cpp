@@ -1,5 +1,6 @@
-// Training speed on fern (COLMAP binary, images_8 = 504x378): iterations per second and the
-// split of one iteration between MLPs (generation), rasterizer, loss, backward and optimizer.
+// Training speed on fern (COLMAP binary, images_8 = 504x378) and lego (NeRF-synthetic at
+// 200x200, white background, random initialisation): iterations per second and the split of one
+// iteration between MLPs (generation), rasterizer, loss, backward and optimizer.
 // Results: bench/results/train_fern.md.
 //
 // Env: CRPGS_BENCH_WARMUP (iterations before timing, default 600: past the start of anchor
@@ -31,23 +32,21 @@ double env_or(const char* name, double fallback) {
   return v ? std::atof(v) : fallback;
 }
 
-std::unique_ptr<Trainer> make_fern_trainer(benchmark::State& state) {
-  const std::string path = std::string(CRPGS_SHARED_DATA_DIR) + "/fern";
-  if (!std::filesystem::exists(path)) {
-    state.SkipWithError("fern dataset not found under CRPGS_SHARED_DATA_DIR");
+/// A full-schedule trainer without the rate path on a shared dataset (d.path: its name there).
+std::unique_ptr<Trainer> make_shared_data_trainer(benchmark::State& state, DatasetOptions d,
+                                                  AnchorModelOptions mo = {}) {
+  const std::string name = d.path;
+  d.path = std::string(CRPGS_SHARED_DATA_DIR) + "/" + name;
+  if (!std::filesystem::exists(d.path)) {
+    state.SkipWithError((name + " dataset not found under CRPGS_SHARED_DATA_DIR").c_str());
     return nullptr;
   }
-  DatasetOptions d;
-  d.path = path;
-  d.format = "colmap";
-  d.images = "images_8";
   auto ds = load_dataset(d);
   if (!ds.ok()) {
     state.SkipWithError(ds.status().to_string().c_str());
     return nullptr;
   }
   TrainOptions to;  // full schedule
-  AnchorModelOptions mo;
   mo.voxel_size = env_or("CRPGS_BENCH_VOXEL", 0.01);
   auto features = identity_feature_model(50);
   auto t = make_trainer(to, mo, std::move(ds).value(), std::make_shared<raster::CpuRasterizer>(0),
@@ -79,9 +78,30 @@ void time_steps(benchmark::State& state, Trainer& t) {
       benchmark::Counter(double(state.iterations()), benchmark::Counter::kIsRate);
 }
 
+void BM_TrainLego(benchmark::State& state) {
+  set_compute_threads(0);
+  DatasetOptions d;
+  d.path = "lego";
+  d.format = "nerf_synthetic";
+  d.max_width = 200;
+  d.background = {1.f, 1.f, 1.f};
+  AnchorModelOptions mo;  // configs/lego.yaml: white background
+  mo.effects.background = d.background;
+  auto t = make_shared_data_trainer(state, d, mo);
+  if (!t) return;
+  const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));
+  for (int i = 0; i < warmup; ++i) (void)t->step();
+  time_steps(state, *t);
+}
+BENCHMARK(BM_TrainLego)->Unit(benchmark::kMillisecond)->Iterations(100);
+
 void BM_TrainFern(benchmark::State& state) {
   set_compute_threads(0);
-  auto t = make_fern_trainer(state);
+  DatasetOptions d;
+  d.path = "fern";
+  d.format = "colmap";
+  d.images = "images_8";
+  auto t = make_shared_data_trainer(state, d);
   if (!t) return;
   const int warmup = int(env_or("CRPGS_BENCH_WARMUP", 600));
   for (int i = 0; i < warmup; ++i) (void)t->step();

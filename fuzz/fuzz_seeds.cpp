@@ -32,12 +32,14 @@ struct Variant {
 std::vector<Variant> variants() {
   const std::string ctx = std::string(kContext) + "}\n";
   const std::string plain_scene = "scene: {view_dependent: false, distance_input: false}\n";
+  const std::string linked = plain_scene + "links: {type: link_random}\n";
   return {
       {"plain", ctx + kModel + plain_scene, 16},
       {"single", ctx + kModel + plain_scene, 1, false, true},
       {"raw_geometry", ctx + kModel + "rate: {geometry: raw}\n", 12},
-      {"links", ctx + kModel + plain_scene, 16, true},
-      {"links_residual", ctx + kModel + plain_scene + "rate: {leaf_residual: true}\n", 12, true},
+      {"links", ctx + kModel + linked, 16, true},
+      {"links_residual", ctx + kModel + linked + "rate: {leaf_residual: true}\n", 12, true},
+      {"links_paper", ctx + kModel + linked + "rate: {link_coding: paper}\n", 16, true},
       {"sfa",
        ctx + kModel + plain_scene +
            "features: {type: sfa, ratio: 0.5, n_levels: 1, resolutions: [4], log2_hashmap_size: 3, "
@@ -107,6 +109,7 @@ StatusOr<Seed> make_seed(const Variant& v, const ComponentRegistry& reg, uint32_
   const YAML::Node rate = config.section("rate");
   m.geometry = rate["geometry"].as<std::string>();
   m.leaf_residual = rate["leaf_residual"].as<bool>();
+  m.link_coding = rate["link_coding"].as<std::string>();
   if (v.links) {
     // Every third anchor is a leaf of the anchor before it (a root, never itself a leaf).
     m.links = torch::full({n}, -1, torch::kLong);

@@ -175,7 +175,7 @@ TEST(HostileBitstream, HeadClaimingHugeCountsIsRefused) {
 
 TEST(HostileBitstream, AnchorMaskClaiming2To32AnchorsInOneKilobyteIsRefused) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-links.crpg");
+  const Bytes& good = seeds().at("seed-links_paper.crpg");
   const uint64_t n0 = uint64_t(1) << 32;
   coding::ByteWriter w;
   w.put_varint(n0);  // AMSK: model anchor count
@@ -320,7 +320,7 @@ TEST(HostileBitstream, EachSectionPayloadCorruptedBehindAValidCrcIsRefusedOrDeco
 
 TEST(HostileBitstream, MissingSectionsAreRefusedByName) {
   SKIP_WITHOUT_PLUGINS();
-  for (const char* seed : {"seed-links.crpg", "seed-sfa.crpg"}) {
+  for (const char* seed : {"seed-links.crpg", "seed-links_paper.crpg", "seed-sfa.crpg"}) {
     const Bytes& good = seeds().at(seed);
     for (const auto& s : sections_of(good)) {
       const Bytes file = rebuild(good, [&](coding::Section& t) { return t.id != s.id; });

@@ -18,6 +18,10 @@
 namespace crpgs {
 namespace {
 
+constexpr const char* kCodecYaml =
+    "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+    "entropy: {type: gaussian}\nmodel: {feature_dim: 50, n_offsets: 10}\n";
+
 /// Pairs consecutive active anchors (2j -> 2j+1 in active order): a deterministic strategy that
 /// does not depend on the link plugins. `chain` makes a root a leaf too (must be refused).
 class PairLinks final : public ContextModel {
@@ -98,21 +102,39 @@ TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
   EXPECT_EQ(lc.roots + lc.leaves + lc.free, coded->voxels.size(0));
   EXPECT_EQ(coded->anchor_mask.sum().item<int64_t>(), coded->voxels.size(0));
 
-  auto cfg = Config::from_string(
-      "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
-      "entropy: {type: gaussian}\nmodel: {feature_dim: 50, n_offsets: 10}\n",
-      "links_test.yaml");
+  auto cfg = Config::from_string(kCodecYaml, "links_test.yaml");
   ASSERT_TRUE(cfg.ok());
   auto resolved = cfg->resolve(test::rate_registry());
   ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
   auto enc = encode_model(coded.value(), resolved.value(), codec_components_of(t->model()));
   ASSERT_TRUE(enc.ok()) << enc.status().to_string();
-  bool has_link = false, has_amsk = false;
-  for (const auto& s : enc->sections) {
-    has_link |= s.id == "LINK";
-    has_amsk |= s.id == "AMSK";
-  }
-  EXPECT_TRUE(has_link && has_amsk);
+  // The default link coding is compact: a LINK section and no active-anchor mask.
+  const auto has_section = [](const EncodeResult& e, const char* id) {
+    for (const auto& s : e.sections)
+      if (s.id == id) return true;
+    return false;
+  };
+  EXPECT_TRUE(has_section(enc.value(), "LINK"));
+  EXPECT_FALSE(has_section(enc.value(), "AMSK"));
+  // The paper's coding writes the mask too, and decodes to the same links.
+  CodedModel paper = coded.value();
+  paper.link_coding = "paper";
+  EXPECT_EQ(encode_model(paper, resolved.value(), codec_components_of(t->model())).status().code(),
+            StatusCode::kInvalidArgument);  // the config says compact
+  auto paper_cfg = Config::from_string(std::string(kCodecYaml) + "rate: {link_coding: paper}\n",
+                                       "links_test_paper.yaml");
+  ASSERT_TRUE(paper_cfg.ok());
+  auto paper_resolved = paper_cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(paper_resolved.ok()) << paper_resolved.status().to_string();
+  auto enc_paper = encode_model(paper, paper_resolved.value(), codec_components_of(t->model()));
+  ASSERT_TRUE(enc_paper.ok()) << enc_paper.status().to_string();
+  EXPECT_TRUE(has_section(enc_paper.value(), "LINK") && has_section(enc_paper.value(), "AMSK"));
+  EXPECT_GT(enc_paper->bytes.size(), enc->bytes.size());
+  auto dec_paper = decode_model(enc_paper->bytes, test::rate_registry());
+  ASSERT_TRUE(dec_paper.ok()) << dec_paper.status().to_string();
+  EXPECT_EQ(dec_paper->model.link_coding, "paper");
+  EXPECT_TRUE(torch::equal(dec_paper->model.links, coded->links));
+  EXPECT_TRUE(torch::equal(dec_paper->model.anchor_mask, coded->anchor_mask));
 
   at::set_num_threads(2);  // a different thread count than the encoder's
   auto dec = decode_model(enc->bytes, test::rate_registry());
@@ -222,6 +244,15 @@ TEST(LinksTraining, CheckpointKeepsTheLinks) {
   ASSERT_TRUE(u->model().load_state_dict(state).ok());
   ASSERT_TRUE(u->model().links().defined());
   EXPECT_TRUE(torch::equal(u->model().links(), t->model().links()));
+  // And through a checkpoint file, as `--resume` reads it into a trainer with no links yet.
+  const std::string path = testing::TempDir() + "crpgs_links_checkpoint.pt";
+  ASSERT_TRUE(t->save_checkpoint(path).ok());
+  auto v = links_trainer(ds, std::make_shared<PairLinks>());
+  ASSERT_FALSE(v->model().links().defined());
+  ASSERT_TRUE(v->load_checkpoint(path).ok());
+  ASSERT_TRUE(v->model().links().defined());
+  EXPECT_TRUE(torch::equal(v->model().links(), t->model().links()));
+  std::filesystem::remove(path);
 }
 
 }  // namespace

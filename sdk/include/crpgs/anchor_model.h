@@ -72,7 +72,8 @@ struct RateOptions {
   double subset = 0.05;          ///< fraction of the visible active anchors the rate is measured on
   QuantSteps q0;                 ///< Q0 of features, (activated) scaling, offsets
   bool recompute_bounds = true;  ///< HAC: bounds recomputed at rate_start; false: frozen (SFA)
-  std::string geometry = "draco";  ///< how the bitstream codes anchor positions: draco or raw
+  std::string geometry = "draco";       ///< how the bitstream codes anchor positions: draco or raw
+  std::string link_coding = "compact";  ///< how the bitstream codes COHS links: compact or paper
   double lr_context_init = 5e-3, lr_context_final = 1e-5;          ///< grid (HAC encoding_xyz)
   double lr_context_mlp_init = 5e-3, lr_context_mlp_final = 1e-5;  ///< HAC mlp_grid
 };
@@ -295,6 +296,9 @@ class AnchorModel {
   /// steps, statistics, bounds and scales.
   std::map<std::string, torch::Tensor> state_dict() const;
   Status load_state_dict(const std::map<std::string, torch::Tensor>& state);
+  /// Keys state_dict() holds only when set (the links once built); a reader of a saved state
+  /// must look for these beyond the keys of a fresh model's state_dict().
+  static const std::vector<std::string>& optional_state_keys();
 
   /// All trainable tensors by group name (feature, offset, scaling, mask, mlp_*, appearance,
   /// feature_model.i, context.grid.i, context.mlp.i).

@@ -7,9 +7,13 @@
 ///   HEAD  counts, voxel size, bounds, Q0s, chunk size
 ///   GEOM  anchor voxels, Draco kd-tree, lossless; every per-anchor stream follows the canonical
 ///         Morton order of these integers, which both sides derive from the decoded voxels
-///   AMSK  (with links) which of the model's N0 anchors are coded, one global Bernoulli
-///   LINK  (with links) the link vector: per coded anchor the canonical index of its root or a
-///         sentinel, w = ceil(log2(N + 1)) bits each (coding/bit_packing.h)
+///   AMSK  (with links coded as in the paper) which of the model's N0 anchors are coded, one
+///         global Bernoulli; redundant for decoding, written for the paper's side information
+///   LINK  (with links) the link vector, in one of two codings (coding/bit_packing.h), chosen by
+///         `rate.link_coding` and named by the section's component id:
+///         compact (org.crpgs.links.compact): leaf flags + each leaf's root as a rank among the
+///         roots still free; paper (org.crpgs.codec.anchor_model): per coded anchor the canonical
+///         index of its root or a sentinel, w = ceil(log2(N + 1)) bits each
 ///   OMSK  offset masks [N, K], one global Bernoulli
 ///   CTXS  the context component's state (binary hash grid + mlp_grid)
 ///   FTRS  the feature model's state (e.g. SFA's shared grid); absent when it has none
@@ -34,6 +38,7 @@
 #include <torch/types.h>
 
 #include "crpgs/anchor_model.h"
+#include "crpgs/coding/bitstream.h"
 #include "crpgs/config.h"
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
@@ -59,9 +64,10 @@ struct CodedModel {
   /// [N] int64: canonical index of each anchor's root, -1 for none (one hop, one-to-one).
   /// Undefined: a model without links or without a single leaf (no AMSK/LINK sections).
   torch::Tensor links;
-  torch::Tensor anchor_mask;       ///< [N0] bool, written with links: which model anchors are coded
+  torch::Tensor anchor_mask;       ///< [N0] bool: which model anchors are coded (paper link coding)
   std::string geometry = "draco";  ///< "draco" or "raw"
-  bool leaf_residual = false;      ///< the leaf MLP's form (from the config `rate.leaf_residual`)
+  std::string link_coding = "compact";  ///< "compact" or "paper" (the LINK section's coding)
+  bool leaf_residual = false;  ///< the leaf MLP's form (from the config `rate.leaf_residual`)
 };
 
 /// Roots, free anchors and leaves of a link vector [N] (counts).
@@ -137,6 +143,9 @@ CodecComponents codec_components_of(const AnchorModel& model);
 /// A render-ready model from a decoded bitstream (dequantised: symbol · step).
 StatusOr<std::unique_ptr<AnchorModel>> model_from_decoded(const DecodeResult& decoded,
                                                           const AnchorModelOptions& options);
+
+/// The link vector [N] (canonical root index or -1) of a LINK section, in either coding.
+StatusOr<std::vector<int32_t>> link_vector_of(const coding::Section& link_section);
 
 /// Section id -> report category ("geometry", "features", "scaling", "offsets", "masks",
 /// "links", "hash_grids", "mlps", "other").

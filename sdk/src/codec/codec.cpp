@@ -23,6 +23,7 @@ using coding::ByteWriter;
 
 constexpr const char* kComponent = "org.crpgs.codec.anchor_model";
 constexpr uint16_t kMajor = 1, kMinor = 0;
+constexpr const char* kCompactLinks = "org.crpgs.links.compact";  // LINK, compact coding
 // Sanity limits for counts read from a file (refused before anything is allocated).
 constexpr uint64_t kMaxOffsets = 64, kMaxCodedDim = 4096, kMaxChunk = 1 << 20;
 
@@ -183,6 +184,20 @@ bool leaf_residual_of(const Config& config) {
   return r && r["leaf_residual"] && r["leaf_residual"].as<bool>();
 }
 
+/// rate.link_coding; a file's config without the key predates the option: paper.
+std::string link_coding_of(const Config& config) {
+  const YAML::Node r = config.section("rate");
+  return r && r["link_coding"] ? r["link_coding"].as<std::string>() : std::string("paper");
+}
+
+/// With the compact coding every model whose config has a link strategy carries a LINK section
+/// (a few bytes without leaves), so a file that lost it is refused instead of decoding the
+/// streams in the wrong order.
+bool always_writes_links(const Config& config) {
+  const YAML::Node l = config.section("links");
+  return link_coding_of(config) == "compact" && l && l.IsMap() && l["type"];
+}
+
 }  // namespace
 
 LinkCounts count_links(const torch::Tensor& links) {
@@ -246,6 +261,14 @@ std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const E
   return out;
 }
 
+StatusOr<std::vector<int32_t>> link_vector_of(const coding::Section& s) {
+  if (s.component_id == kCompactLinks)
+    return in_section("LINK", coding::decode_links_compact(ByteSpan(s.payload)));
+  if (s.component_id == kComponent)
+    return in_section("LINK", coding::unpack_links(ByteSpan(s.payload)));
+  return corrupt("LINK: unknown link coding '" + s.component_id + "'");
+}
+
 const char* section_category(const std::string& id) {
   if (id == "GEOM") return "geometry";
   if (id == "FEAT") return "features";
@@ -285,6 +308,9 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
     return bad("unknown geometry coding '" + m.geometry + "' (draco, raw)");
   CRPGS_ASSIGN_OR_RETURN(Bytes geometry, m.geometry == "raw" ? coding::encode_voxels_raw(points)
                                                              : coding::encode_positions(points));
+  if (m.link_coding != link_coding_of(config))
+    return bad("the link coding '" + m.link_coding + "' disagrees with the config's '" +
+               link_coding_of(config) + "' (rate.link_coding)");
   if (m.leaf_residual != leaf_residual_of(config))
     return bad("the leaf MLP form disagrees with the config's rate.leaf_residual");
   std::vector<int32_t> links;
@@ -317,7 +343,11 @@ StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
   CRPGS_RETURN_IF_ERROR(w.add_section("HEAD", kComponent, kMajor, kMinor, head.take()));
   CRPGS_RETURN_IF_ERROR(
       w.add_section("GEOM", "org.crpgs.geometry." + m.geometry, 1, 0, std::move(geometry)));
-  if (m.links.defined()) {
+  if (m.link_coding == "compact" && (m.links.defined() || always_writes_links(config))) {
+    if (!m.links.defined()) links.assign(size_t(N), coding::kNoRoot);
+    CRPGS_ASSIGN_OR_RETURN(Bytes link_bytes, coding::encode_links_compact(links));
+    CRPGS_RETURN_IF_ERROR(w.add_section("LINK", kCompactLinks, 1, 0, std::move(link_bytes)));
+  } else if (m.links.defined()) {
     // The active-anchor mask is redundant for decoding (method.md §7.11); written so the size
     // accounting matches the paper's side information.
     if (!m.anchor_mask.defined() || m.anchor_mask.sum().item<int64_t>() != N)
@@ -485,12 +515,20 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   m.voxels = N ? torch::from_blob(points.data(), {int64_t(N), 3}, torch::kInt).clone()
                : torch::empty({0, 3}, torch::kInt);
 
-  // Links (CRP-GS): the active-anchor mask (checked, not needed) and the link vector.
+  // Links (CRP-GS): the link vector, and with the paper's coding the active-anchor mask
+  // (checked, not needed).
   m.leaf_residual = leaf_residual_of(out.config);
-  const bool has_amsk = ct.find("AMSK") != nullptr, has_link = ct.find("LINK") != nullptr;
-  if (has_amsk != has_link)
-    return corrupt(std::string("missing section ") + (has_amsk ? "LINK" : "AMSK") +
-                   " (AMSK and LINK are written together)");
+  const coding::Section* link_section = ct.find("LINK");
+  const bool has_amsk = ct.find("AMSK") != nullptr;
+  m.link_coding = link_coding_of(out.config);
+  if (link_section && (link_section->component_id == kCompactLinks) != (m.link_coding == "compact"))
+    return corrupt("LINK is coded as " + link_section->component_id +
+                   ", the config says rate.link_coding: " + m.link_coding);
+  if (!link_section && always_writes_links(out.config))
+    return corrupt("missing section LINK (the config has a link strategy)");
+  if (has_amsk != (link_section && m.link_coding == "paper"))
+    return corrupt(has_amsk ? "AMSK without a LINK section in the paper's coding"
+                            : "missing section AMSK (written with the paper's link coding)");
   if (const coding::Section* as = ct.find("AMSK")) {
     ByteReader ar(ByteSpan(as->payload), "AMSK");
     uint64_t n0 = 0;
@@ -508,15 +546,18 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
                      std::to_string(N));
     m.anchor_mask = torch::from_blob(am.data(), {int64_t(n0)}, torch::kUInt8).to(torch::kBool);
   }
-  if (const coding::Section* ls = ct.find("LINK")) {
-    CRPGS_ASSIGN_OR_RETURN(std::vector<int32_t> links,
-                           in_section("LINK", coding::unpack_links(ByteSpan(ls->payload))));
+  if (link_section) {
+    CRPGS_ASSIGN_OR_RETURN(std::vector<int32_t> links, link_vector_of(*link_section));
     if (links.size() != N)
       return corrupt("LINK holds " + std::to_string(links.size()) + " entries for " +
                      std::to_string(N) + " anchors");
     for (int32_t r : links)
       if (r >= 0 && links[size_t(r)] >= 0) return corrupt("LINK: a root is itself a leaf");
-    m.links = torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong);
+    // No leaves (a compact LINK written for a link strategy that linked nothing): no links.
+    bool any_leaf = false;
+    for (int32_t r : links) any_leaf |= r >= 0;
+    if (any_leaf)
+      m.links = torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong);
   }
 
   CRPGS_ASSIGN_OR_RETURN(const coding::Section* ms, section("OMSK"));
@@ -660,6 +701,7 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
     }
   }
   m.geometry = model.rate_options().geometry;
+  m.link_coding = model.rate_options().link_coding;
   // Quantise in coding order, so the steps come from the same context chunks as the decoder's.
   const auto coded_order = coding_order(m.links, n);
   QuantizedAttributes q = model.quantize(canon.index_select(0, coded_order));

@@ -1034,6 +1034,11 @@ std::map<std::string, torch::Tensor> AnchorModel::state_dict() const {
   return s;
 }
 
+const std::vector<std::string>& AnchorModel::optional_state_keys() {
+  static const std::vector<std::string> keys = {"links"};
+  return keys;
+}
+
 Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& s) {
   Impl& m = *impl_;
   auto get = [&](const std::string& k, torch::Tensor& dst) -> Status {

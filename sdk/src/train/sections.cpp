@@ -184,6 +184,11 @@ const std::vector<CoreSection>& core_sections() {
                     "anchor positions in the bitstream: draco (lossless point-cloud codec) or "
                     "raw (fixed-width voxel integers, HAC's 16 bits per axis)"),
                   {"draco", "raw"}),
+           choice(P("link_coding", T::kChoice, YAML::Node("compact"),
+                    "COHS links in the bitstream: compact (leaf flags + each root's rank among "
+                    "the free roots) or paper (active-anchor mask + ceil(log2(N+1)) bits per "
+                    "anchor, method.md §7.11)"),
+                  {"compact", "paper"}),
            P("recompute_bounds", T::kBool, YAML::Node(true),
              "recompute the anchor bounds at rate_start (HAC); false keeps the initial ones"),
            range(

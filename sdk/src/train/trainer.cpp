@@ -318,6 +318,11 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
                           "' (written by a different model configuration?)");
       state[kv.first] = t;
     }
+    // A fresh model has no links yet; a checkpoint written after a link build has them.
+    for (const auto& key : AnchorModel::optional_state_keys()) {
+      torch::Tensor t;
+      if (ar.try_read(archive_key("model." + key), t)) state[key] = t;
+    }
     CRPGS_RETURN_IF_ERROR(model_->load_state_dict(state));
     torch::Tensor it, rng;  // read() into a defined tensor would resize it in place
     ar.read("iteration", it);
@@ -674,6 +679,7 @@ StatusOr<RateOptions> rate_options_from_config(const Config& resolved) {
     o.q0.offset = get(r, "q0_offset", o.q0.offset);
     o.recompute_bounds = get(r, "recompute_bounds", o.recompute_bounds);
     o.geometry = get<std::string>(r, "geometry", o.geometry);
+    o.link_coding = get<std::string>(r, "link_coding", o.link_coding);
     o.lr_context_init = get(r, "lr_context", o.lr_context_init);
     o.lr_context_final = get(r, "lr_context_final", o.lr_context_final);
     o.lr_context_mlp_init = get(r, "lr_context_mlp", o.lr_context_mlp_init);
