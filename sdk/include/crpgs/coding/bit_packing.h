@@ -3,7 +3,7 @@
 /// - paper (method.md §7.11): one entry per active anchor, the active index of its root or
 ///   "no root", stored with w = ceil(log2(N_a + 1)) bits per entry and the sentinel 2^w - 1;
 /// - compact: leaf flags plus each leaf's root as a rank among the roots still free (one-to-one
-///   links only), about 2.3x smaller on fern (bench/results/rd_fern.md).
+///   links only), 2.2-2.5x smaller on fern (bench/results/rd_fern.md).
 /// Bits are packed LSB first: entry i occupies stream bits [i*w, (i+1)*w), bit k of the stream is
 /// bit (k % 8) of byte k / 8; unused high bits of the last byte are zero.
 #pragma once
