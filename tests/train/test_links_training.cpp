@@ -43,7 +43,8 @@ class PairLinks final : public ContextModel {
 };
 
 // Noise from 10, rate from 22, growth stops at 20, links built at 24 and 27.
-std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<ContextModel> links) {
+std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<ContextModel> links,
+                                       bool prune_links = false) {
   at::set_num_threads(1);
   torch::manual_seed(1);
   TrainOptions to;
@@ -59,7 +60,9 @@ std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<Contex
   AnchorModelOptions mo;
   mo.voxel_size = 0.08;
   mo.lr.max_steps = 30;
-  RateSetup rs = test::make_rate_setup(50, 10, RateOptions());
+  RateOptions ro;
+  ro.prune_links = prune_links;
+  RateSetup rs = test::make_rate_setup(50, 10, ro);
   rs.links = std::move(links);
   rs.link_options.lr_start = 24;
   rs.link_options.lr_end = 30;
@@ -232,6 +235,49 @@ TEST(LinksTraining, ChainsAndBadShapesAreRefused) {
   ASSERT_TRUE(plain.ok());
   EXPECT_FALSE(
       plain.value()->model().attach_links(std::make_shared<PairLinks>(), LinkOptions(), {}).ok());
+}
+
+TEST(LinksTraining, EncoderDropsExactlyTheLinksThatCostMoreThanTheySave) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = test::tiny_scene();
+  // The same training twice (deterministic); pruning changes only what is coded.
+  auto kept = links_trainer(ds, std::make_shared<PairLinks>(), false);
+  auto pruned = links_trainer(ds, std::make_shared<PairLinks>(), true);
+  for (int it = 0; it < 30; ++it) {
+    ASSERT_TRUE(kept->step().ok());
+    ASSERT_TRUE(pruned->step().ok());
+  }
+  auto all = coded_model_from(kept->model());
+  ASSERT_TRUE(all.ok()) << all.status().to_string();
+  ASSERT_TRUE(all->links.defined());
+  const auto params = coded_entropy_params(all.value(), *kept->model().context(), 50);
+  const auto bits =
+      feature_row_bits(all.value(), params, *kept->model().context(), *kept->model().entropy());
+  const auto is_leaf = all->links >= 0;
+  const double cost = compact_link_bits(is_leaf.logical_not().sum().item<int64_t>());
+  const auto drop = is_leaf.logical_and((bits.base - bits.coded) < cost);
+  const int64_t dropped = drop.sum().item<int64_t>();
+  // Pair links on a tiny scene: some leaves pay for their link and some do not.
+  ASSERT_GT(dropped, 0);
+  ASSERT_LT(dropped, is_leaf.sum().item<int64_t>());
+
+  auto some = coded_model_from(pruned->model());
+  ASSERT_TRUE(some.ok()) << some.status().to_string();
+  ASSERT_TRUE(some->links.defined());
+  EXPECT_TRUE(
+      torch::equal(some->links, torch::where(drop, torch::full_like(all->links, -1), all->links)));
+  EXPECT_TRUE(torch::equal(some->feature_sym, all->feature_sym));
+
+  auto cfg = Config::from_string(kCodecYaml, "links_prune_test.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto resolved = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(resolved.ok());
+  auto enc = encode_model(some.value(), resolved.value(), codec_components_of(pruned->model()));
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  auto dec = decode_model(enc->bytes, test::rate_registry());
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_TRUE(torch::equal(dec->model.links, some->links));
+  EXPECT_TRUE(torch::equal(dec->model.feature_sym, some->feature_sym));
 }
 
 TEST(LinksTraining, CheckpointKeepsTheLinks) {

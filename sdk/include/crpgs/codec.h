@@ -144,6 +144,11 @@ CodecComponents codec_components_of(const AnchorModel& model);
 StatusOr<std::unique_ptr<AnchorModel>> model_from_decoded(const DecodeResult& decoded,
                                                           const AnchorModelOptions& options);
 
+/// What one more link costs in the compact LINK section, in bits (approximately: the root's rank
+/// among `non_leaves` candidates plus the leaf flag). With `rate.prune_links`, coded_model_from
+/// drops every link whose leaf saves fewer estimated feature bits than this.
+double compact_link_bits(int64_t non_leaves);
+
 /// The link vector [N] (canonical root index or -1) of a LINK section, in either coding.
 StatusOr<std::vector<int32_t>> link_vector_of(const coding::Section& link_section);
 

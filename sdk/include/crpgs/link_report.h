@@ -19,6 +19,14 @@ struct LinkRateReport {
   double mean_leaf_root_cosine = 0;
 };
 
+/// Estimated FEAT bits of every anchor [N] (double) under the parameters `p` it is coded with,
+/// and under the base model's means (the same model coded without links); they differ on leaves.
+struct FeatureRowBits {
+  torch::Tensor coded, base;
+};
+FeatureRowBits feature_row_bits(const CodedModel& m, const EntropyParams& p, ContextModel& context,
+                                EntropyModel& entropy);
+
 /// `m` must have links (a model without leaves has nothing to report: kInvalidArgument).
 /// `p` are the entropy parameters it was coded with (canonical rows, e.g. DecodeResult::params).
 StatusOr<LinkRateReport> link_rate_report(const CodedModel& m, const EntropyParams& p,

@@ -2,6 +2,8 @@
 /// @brief encode_model / decode_model: the anchor-model bitstream described in codec.h.
 #include "crpgs/codec.h"
 
+#include <algorithm>
+#include <cmath>
 #include <functional>
 
 #include <torch/torch.h>
@@ -11,6 +13,7 @@
 #include "crpgs/coding/geometry.h"
 #include "crpgs/coding/range_coder.h"
 #include "crpgs/components.h"
+#include "crpgs/link_report.h"
 #include "crpgs/runtime.h"
 
 namespace crpgs {
@@ -259,6 +262,10 @@ std::map<std::string, double> estimated_stream_bits(const CodedModel& m, const E
                              : 0.0;
   }
   return out;
+}
+
+double compact_link_bits(int64_t non_leaves) {
+  return std::log2(std::max(2.0, double(non_leaves))) + 1.0;
 }
 
 StatusOr<std::vector<int32_t>> link_vector_of(const coding::Section& s) {
@@ -702,27 +709,50 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   }
   m.geometry = model.rate_options().geometry;
   m.link_coding = model.rate_options().link_coding;
-  // Quantise in coding order, so the steps come from the same context chunks as the decoder's.
-  const auto coded_order = coding_order(m.links, n);
-  QuantizedAttributes q = model.quantize(canon.index_select(0, coded_order));
-  auto back = torch::empty_like(coded_order);
-  back.index_put_({coded_order}, torch::arange(n, torch::kLong));
-  auto rows = [&](torch::Tensor& t) { t = t.index_select(0, back); };
-  for (torch::Tensor* t :
-       {&q.index, &q.positions, &q.positions01, &q.params.mu_f, &q.params.sigma_f, &q.params.mu_s,
-        &q.params.sigma_s, &q.params.mu_o, &q.params.sigma_o, &q.params.q_f, &q.params.q_s,
-        &q.params.q_o, &q.feature_symbols, &q.scaling_symbols, &q.offset_symbols, &q.features,
-        &q.scaling, &q.offsets, &q.offset_masks})
-    rows(*t);
   m.voxel_size = model.voxel_size();
-  m.bounds = q.bounds.to(torch::kFloat);
   m.voxels = vox.index({perm}).contiguous();
-  m.offset_masks = q.offset_masks;
-  m.feature_sym = q.feature_symbols;
-  m.scaling_sym = q.scaling_symbols;
-  m.offset_sym = q.offset_symbols;
   m.mlps = model.mlp_tensors();
   m.q0 = model.rate_options().q0;
+  QuantizedAttributes q;
+  auto quantise = [&] {
+    // In coding order, so the steps come from the same context chunks as the decoder's.
+    const auto coded_order = coding_order(m.links, n);
+    q = model.quantize(canon.index_select(0, coded_order));
+    auto back = torch::empty_like(coded_order);
+    back.index_put_({coded_order}, torch::arange(n, torch::kLong));
+    auto rows = [&](torch::Tensor& t) { t = t.index_select(0, back); };
+    for (torch::Tensor* t :
+         {&q.index, &q.positions, &q.positions01, &q.params.mu_f, &q.params.sigma_f, &q.params.mu_s,
+          &q.params.sigma_s, &q.params.mu_o, &q.params.sigma_o, &q.params.q_f, &q.params.q_s,
+          &q.params.q_o, &q.feature_symbols, &q.scaling_symbols, &q.offset_symbols, &q.features,
+          &q.scaling, &q.offsets, &q.offset_masks})
+      rows(*t);
+    m.bounds = q.bounds.to(torch::kFloat);
+    m.offset_masks = q.offset_masks;
+    m.feature_sym = q.feature_symbols;
+    m.scaling_sym = q.scaling_symbols;
+    m.offset_sym = q.offset_symbols;
+  };
+  quantise();
+  if (m.links.defined() && m.link_coding == "compact" && model.rate_options().prune_links) {
+    // A link pays only when its leaf saves more FEAT bits than the link costs in the compact
+    // LINK section: about log2 of the roots to choose from, plus the leaf flag. Leaves that save
+    // less are coded as free anchors (their features are the same; the partition changes).
+    // q.params hold the base means; the coded parameters add the leaf model's.
+    const EntropyParams p = coded_entropy_params(m, *model.context(), m.feature_sym.size(1));
+    const FeatureRowBits b = feature_row_bits(m, p, *model.context(), *model.entropy());
+    const auto is_leaf = m.links >= 0;
+    const double link_bits = compact_link_bits(is_leaf.logical_not().sum().item<int64_t>());
+    const auto drop = is_leaf.logical_and((b.base - b.coded) < link_bits);
+    if (drop.any().item<bool>()) {
+      m.links = torch::where(drop, torch::full_like(m.links, -1), m.links);
+      if (!(m.links >= 0).any().item<bool>()) {
+        m.links = torch::Tensor();
+        m.anchor_mask = torch::Tensor();
+      }
+      quantise();
+    }
+  }
   if (q_out) *q_out = std::move(q);
   return m;
 }

@@ -189,6 +189,9 @@ const std::vector<CoreSection>& core_sections() {
                     "the free roots) or paper (active-anchor mask + ceil(log2(N+1)) bits per "
                     "anchor, method.md §7.11)"),
                   {"compact", "paper"}),
+           P("prune_links", T::kBool, YAML::Node(true),
+             "with compact link coding, the encoder drops every link whose leaf saves fewer "
+             "estimated feature bits than the link costs (the leaf is coded as a free anchor)"),
            P("recompute_bounds", T::kBool, YAML::Node(true),
              "recompute the anchor bounds at rate_start (HAC); false keeps the initial ones"),
            range(

@@ -680,6 +680,7 @@ StatusOr<RateOptions> rate_options_from_config(const Config& resolved) {
     o.recompute_bounds = get(r, "recompute_bounds", o.recompute_bounds);
     o.geometry = get<std::string>(r, "geometry", o.geometry);
     o.link_coding = get<std::string>(r, "link_coding", o.link_coding);
+    o.prune_links = get(r, "prune_links", o.prune_links);
     o.lr_context_init = get(r, "lr_context", o.lr_context_init);
     o.lr_context_final = get(r, "lr_context_final", o.lr_context_final);
     o.lr_context_mlp_init = get(r, "lr_context_mlp", o.lr_context_mlp_init);
