@@ -74,8 +74,7 @@ struct RateOptions {
   bool recompute_bounds = true;  ///< HAC: bounds recomputed at rate_start; false: frozen (SFA)
   std::string geometry = "draco";       ///< how the bitstream codes anchor positions: draco or raw
   std::string link_coding = "compact";  ///< how the bitstream codes COHS links: compact or paper
-  bool prune_links =
-      true;  ///< compact coding: the encoder drops links that cost more than they save
+  bool prune_links = true;  ///< compact coding: drop links that cost more bits than they save
   double lr_context_init = 5e-3, lr_context_final = 1e-5;          ///< grid (HAC encoding_xyz)
   double lr_context_mlp_init = 5e-3, lr_context_mlp_final = 1e-5;  ///< HAC mlp_grid
 };

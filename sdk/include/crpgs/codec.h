@@ -62,7 +62,8 @@ struct CodedModel {
   QuantSteps q0;
   int64_t chunk = 3000;
   /// [N] int64: canonical index of each anchor's root, -1 for none (one hop, one-to-one).
-  /// Undefined: a model without links or without a single leaf (no AMSK/LINK sections).
+  /// Undefined: a model without links or without a single leaf (then no AMSK/LINK sections,
+  /// except a compact LINK without leaves when the config has a link strategy).
   torch::Tensor links;
   torch::Tensor anchor_mask;       ///< [N0] bool: which model anchors are coded (paper link coding)
   std::string geometry = "draco";  ///< "draco" or "raw"

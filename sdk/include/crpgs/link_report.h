@@ -23,6 +23,7 @@ struct LinkRateReport {
 /// and under the base model's means (the same model coded without links); they differ on leaves.
 struct FeatureRowBits {
   torch::Tensor coded, base;
+  torch::Tensor features;  ///< [N, Dc] float: the dequantised coded features they were taken on
 };
 FeatureRowBits feature_row_bits(const CodedModel& m, const EntropyParams& p, ContextModel& context,
                                 EntropyModel& entropy);

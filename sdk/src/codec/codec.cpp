@@ -558,11 +558,12 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
     if (links.size() != N)
       return corrupt("LINK holds " + std::to_string(links.size()) + " entries for " +
                      std::to_string(N) + " anchors");
-    for (int32_t r : links)
-      if (r >= 0 && links[size_t(r)] >= 0) return corrupt("LINK: a root is itself a leaf");
-    // No leaves (a compact LINK written for a link strategy that linked nothing): no links.
     bool any_leaf = false;
-    for (int32_t r : links) any_leaf |= r >= 0;
+    for (int32_t r : links) {
+      if (r >= 0 && links[size_t(r)] >= 0) return corrupt("LINK: a root is itself a leaf");
+      any_leaf |= r >= 0;
+    }
+    // No leaves (a compact LINK written for a link strategy that linked nothing): no links.
     if (any_leaf)
       m.links = torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong);
   }

@@ -9,11 +9,11 @@ FeatureRowBits feature_row_bits(const CodedModel& m, const EntropyParams& p, Con
                                 EntropyModel& entropy) {
   torch::NoGradGuard no_grad;
   const auto q = p.q_f.expand_as(p.mu_f).contiguous();  // [N, Dc]
-  const auto f = m.feature_sym.to(torch::kFloat) * q;   // dequantised coded features
-  auto row_bits = [&](const torch::Tensor& mu) {        // [N]
-    return entropy.bits(f, mu, p.sigma_f, q).sum(1).to(torch::kDouble);
-  };
   FeatureRowBits r;
+  r.features = m.feature_sym.to(torch::kFloat) * q;
+  auto row_bits = [&](const torch::Tensor& mu) {  // [N]
+    return entropy.bits(r.features, mu, p.sigma_f, q).sum(1).to(torch::kDouble);
+  };
   r.coded = row_bits(p.mu_f);
   r.base = r.coded;
   if (m.links.defined() && (m.links >= 0).any().item<bool>()) {
@@ -44,8 +44,7 @@ StatusOr<LinkRateReport> link_rate_report(const CodedModel& m, const EntropyPara
   r.leaf_bits = bits.masked_select(is_leaf).sum().item<double>();
   if (r.counts.leaves > 0) {
     r.leaf_bits_base = rows.base.masked_select(is_leaf).sum().item<double>();
-    const auto q = p.q_f.expand_as(p.mu_f);
-    const auto f = m.feature_sym.to(torch::kFloat) * q;
+    const auto& f = rows.features;
     const auto leaf_idx = is_leaf.nonzero().squeeze(1);
     const auto cos = torch::cosine_similarity(
         f.index_select(0, leaf_idx), f.index_select(0, links.index_select(0, leaf_idx)), 1, 1e-8);
