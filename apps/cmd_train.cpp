@@ -26,7 +26,7 @@ extern "C" void on_signal(int sig) {
 /// Draws the trainer's reports as a progress bar (TTY) or plain lines (logs).
 class CliProgress final : public ProgressCallback {
  public:
-  explicit CliProgress(int total) : bar_("train", total) {}
+  CliProgress(int total, int already_done) : bar_("train", total, already_done) {}
   void on_iteration(const TrainingProgress& p) override {
     if (p.has_test_psnr) last_psnr_ = p.test_psnr;
     char extra[160];
@@ -48,8 +48,9 @@ class CliProgress final : public ProgressCallback {
 };
 
 /// Train from a resolved config into `out_dir`; evaluates the test views at the end.
+/// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
-                 bool resume) {
+                 bool resume, const std::string& method = "") {
   std::error_code ec;
   fs::create_directories(out_dir, ec);
   Status st = cfg.save(out_dir + "/config.yaml");
@@ -71,7 +72,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   const int signals[] = {SIGINT, SIGTERM, SIGUSR1};
   void (*previous[3])(int);
   for (int i = 0; i < 3; ++i) previous[i] = std::signal(signals[i], on_signal);
-  CliProgress progress(t.options().schedule.iterations);
+  CliProgress progress(t.options().schedule.iterations, t.iteration());
   st = t.train(&progress, &control);
   for (int i = 0; i < 3; ++i) std::signal(signals[i], previous[i]);
   g_control = nullptr;
@@ -126,8 +127,9 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
     for (const auto& v : eval->views)
       m.views.push_back({v.name, v.psnr, v.ssim, eval->seconds_per_view});
   }
-  m.method =
-      cfg.file().empty() || cfg.file()[0] == '<' ? "demo" : fs::path(cfg.file()).stem().string();
+  m.method = !method.empty()                              ? method
+             : cfg.file().empty() || cfg.file()[0] == '<' ? "demo"
+                                                          : fs::path(cfg.file()).stem().string();
   m.dataset = t.dataset().name;
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(cfg.hash()));
@@ -159,7 +161,7 @@ train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interv
 }  // namespace
 
 void add_train_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string config, out_dir, run_dir, png_dir;
+  static std::string config, out_dir, run_dir, png_dir, method;
   static bool resume = false;
 
   auto* train =
@@ -169,11 +171,14 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
       ->default_val("runs/train");
   train->add_option("--set", g.sets, "override a config key: --set train.iterations=1000");
   train->add_flag("--resume", resume, "continue from the run directory's last checkpoint");
+  train->add_option("--method", method,
+                    "name of the method in metrics.json and reports (default: the config's file "
+                    "name; `crpgs sweep` passes the config name plus its non-rate overrides)");
   train->callback([&g] {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(config, g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, resume));
+    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, resume, method));
   });
 
   auto* eval = app.add_subcommand(

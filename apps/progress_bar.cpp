@@ -21,9 +21,10 @@ std::string format_duration(double s) {
   return buf;
 }
 
-ProgressBar::ProgressBar(std::string label, long total, FILE* out)
+ProgressBar::ProgressBar(std::string label, long total, long already_done, FILE* out)
     : label_(std::move(label)),
       total_(std::max(1L, total)),
+      already_done_(std::clamp(already_done, 0L, total_)),
       out_(out),
       tty_(isatty(fileno(out)) != 0),
       start_(std::chrono::steady_clock::now()),
@@ -57,7 +58,7 @@ void ProgressBar::message(const std::string& line) {
 void ProgressBar::draw(long done, const std::string& extra, bool final) {
   const double elapsed =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-  const double rate = elapsed > 0 ? done / elapsed : 0;
+  const double rate = elapsed > 0 ? double(done - already_done_) / elapsed : 0;
   const double eta = rate > 0 ? (total_ - done) / rate : NAN;
   const double frac = std::clamp(double(done) / total_, 0.0, 1.0);
   char stats[160];

@@ -11,7 +11,9 @@ namespace crpgs::cli {
 
 class ProgressBar {
  public:
-  ProgressBar(std::string label, long total, FILE* out = stderr);
+  /// `already_done` units were finished before this bar started (a resumed run): the rate and
+  /// ETA count only what this process does.
+  ProgressBar(std::string label, long total, long already_done = 0, FILE* out = stderr);
   ~ProgressBar();
   /// `done` units finished; `extra` is shown after the rate (loss, PSNR, ...).
   void update(long done, const std::string& extra = "");
@@ -23,6 +25,7 @@ class ProgressBar {
   void draw(long done, const std::string& extra, bool final);
   std::string label_;
   long total_;
+  long already_done_;
   FILE* out_;
   bool tty_;
   bool finished_ = false;

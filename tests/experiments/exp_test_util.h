@@ -35,16 +35,18 @@ inline std::string write_fake_runner(const std::string& dir) {
   const std::string path = dir + "/fake_train.sh";
   write_text(path, R"sh(#!/bin/bash
 set -eu
-cfg=""; out=""; resume=""
+cfg=""; out=""; resume=""; method=""
 while [ $# -gt 0 ]; do
   case "$1" in
     -c) cfg="$2"; shift 2 ;;
     -o) out="$2"; shift 2 ;;
     --resume) resume=" --resume"; shift ;;
+    --method) method="$2"; shift 2 ;;
     *) shift ;;
   esac
 done
 echo "fake train: $cfg -> $out"
+echo "$method" > "$out/method_arg"
 [ -n "${FAKE_LOG:-}" ] && echo "$out$resume" >> "$FAKE_LOG"
 echo checkpoint > "$out/checkpoint.pt"
 if [ -n "${FAKE_CRASH:-}" ] && [[ "$out" == *"$FAKE_CRASH" ]] && [ ! -e "$out/.crashed_once" ]; then

@@ -197,6 +197,8 @@ TEST(Sweep, LocalRunSkipsFinishedRunsAndRerunsACrashedOne) {
   for (const auto& r : s.runs) {
     EXPECT_TRUE(fs::exists(r.dir + "/config.yaml")) << r.id;
     EXPECT_TRUE(fs::exists(r.dir + "/stdout.log")) << r.id;
+    // The run's method reaches `crpgs train`, so metrics.json names it as run.json does.
+    EXPECT_EQ(read_text(r.dir + "/method_arg"), r.method + "\n") << r.id;
     if (&r != &crashed) {
       EXPECT_EQ(run_state(r.dir), RunState::kComplete) << r.id;
     }

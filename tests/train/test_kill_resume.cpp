@@ -84,10 +84,16 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
     resumed_from = int(ckpt.at("iteration").item<int64_t>());
     EXPECT_EQ(resumed_from % 4, 0);
   }
-  ASSERT_EQ(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() + "' --resume",
+  ASSERT_EQ(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() +
+                              "' --resume --method 'tiny resumed'",
                           dir / "resume.log", &log),
             0)
       << log;
+  // metrics.json names the method: the config's file name unless --method says otherwise.
+  EXPECT_NE(test::read_text(dir / "ref" / "metrics.json").find("\"method\": \"tiny\""),
+            std::string::npos);
+  EXPECT_NE(test::read_text(run / "metrics.json").find("\"method\": \"tiny resumed\""),
+            std::string::npos);
   if (resumed_from > 0) {
     EXPECT_NE(log.find("resumed at iteration " + std::to_string(resumed_from)), std::string::npos)
         << log;

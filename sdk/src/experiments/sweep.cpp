@@ -297,8 +297,8 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   fs::remove(run.dir + "/metrics.json", ec);  // stale from an interrupted attempt
   CRPGS_RETURN_IF_ERROR(write_file_atomic(run.dir + "/.running", "started " + now_text() + "\n"));
 
-  std::vector<std::string> args = {opt.runner, "train", "-c", run.dir + "/config.yaml",
-                                   "-o",       run.dir};
+  std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",
+                                   "-o",       run.dir, "--method", run.method};
   if (resume) args.push_back("--resume");
   const std::string header = "== " + now_text() + " " + [&] {
     std::string cmd;
