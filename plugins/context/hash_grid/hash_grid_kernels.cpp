@@ -16,50 +16,62 @@ namespace {
 
 constexpr uint32_t kPrimes[3] = {1u, 2654435761u, 805459861u};
 
-/// Weights (normalised) and table rows of the 2^dim corners of one point at one level.
-/// Returns false if the point is outside [0, 1] on an axis the level reads.
-template <typename scalar_t>
-bool corners(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
-  scalar_t frac[3];
-  int64_t g[3];
-  for (int d = 0; d < lv.dim; ++d) {
+/// Weights (normalised) and table rows of the 2^DIM corners of one point at one level.
+/// Returns false if the point is outside [0, 1] on an axis the level reads. Each axis's two
+/// candidate weights, border flags, dense and hash terms are computed once and combined per
+/// corner in the same order as the reference, so the results are bit-identical to it.
+template <int DIM, typename scalar_t>
+bool corners_dim(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
+  scalar_t wd[DIM][2];
+  bool border_d[DIM][2];
+  int64_t dense_d[DIM][2];
+  uint32_t hash_d[DIM][2];
+  int64_t stride = 1;
+  for (int d = 0; d < DIM; ++d) {
     const scalar_t v = u[lv.axes[d]];
     if (!(v >= scalar_t(0) && v <= scalar_t(1))) return false;
     const scalar_t p = v * scalar_t(lv.res - 2) + scalar_t(0.5);
     const scalar_t fl = std::floor(p);
-    g[d] = int64_t(fl);
-    frac[d] = p - fl;
+    const scalar_t frac = p - fl;
+    const int64_t id[2] = {int64_t(fl), std::min(int64_t(fl) + 1, lv.res - 1)};
+    wd[d][0] = scalar_t(1) - frac;
+    wd[d][1] = frac;
+    for (int b = 0; b < 2; ++b) {
+      border_d[d][b] = id[b] == 0 || id[b] == lv.res - 1;
+      dense_d[d][b] = id[b] * stride;
+      hash_d[d][b] = uint32_t(id[b]) * kPrimes[d];
+    }
+    stride *= lv.res;
   }
-  const int n = 1 << lv.dim;
+  // A dense index is below res^dim <= size; a hashed level's size is a power of two, so the
+  // modulo is a mask instead of an int64 division per corner.
+  const uint32_t hash_mask = uint32_t(lv.size - 1);
   scalar_t sum = 0;
-  for (int c = 0; c < n; ++c) {
+  for (int c = 0; c < (1 << DIM); ++c) {
     scalar_t wc = 1;
     bool border = false;
-    int64_t dense = 0, stride = 1;
+    int64_t dense = 0;
     uint32_t hash = 0;
-    for (int d = 0; d < lv.dim; ++d) {
-      int64_t id = g[d];
-      if (c & (1 << d)) {
-        wc = wc * frac[d];
-        id = std::min(id + 1, lv.res - 1);
-      } else {
-        wc = wc * (scalar_t(1) - frac[d]);
-      }
-      border = border || id == 0 || id == lv.res - 1;
-      dense += id * stride;
-      stride *= lv.res;
-      hash ^= uint32_t(id) * kPrimes[d];
+    for (int d = 0; d < DIM; ++d) {
+      const int b = (c >> d) & 1;
+      wc = wc * wd[d][b];
+      border = border || border_d[d][b];
+      dense += dense_d[d][b];
+      hash ^= hash_d[d][b];
     }
     if (border) wc = 0;
     w[c] = wc;
     sum = sum + wc;
-    // A dense index is below res^dim <= size; a hashed level's size is a power of two, so the
-    // modulo is a mask instead of an int64 division per corner.
-    row[c] = lv.offset + (lv.dense ? dense : int64_t(hash & uint32_t(lv.size - 1)));
+    row[c] = lv.offset + (lv.dense ? dense : int64_t(hash & hash_mask));
   }
   const scalar_t denom = sum == scalar_t(0) ? scalar_t(1e-9) : sum;
-  for (int c = 0; c < n; ++c) w[c] = w[c] / denom;
+  for (int c = 0; c < (1 << DIM); ++c) w[c] = w[c] / denom;
   return true;
+}
+
+template <typename scalar_t>
+bool corners(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
+  return lv.dim == 3 ? corners_dim<3>(lv, u, w, row) : corners_dim<2>(lv, u, w, row);
 }
 
 /// Sign bits of a binarised table, one byte per row (bit f = value f >= 0, HAC's convention):
