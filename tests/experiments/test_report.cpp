@@ -94,6 +94,11 @@ TEST(Report, TablesHaveRdPointsAndBdRows) {
   EXPECT_EQ(std::count(md.begin(), md.end(), '\n') > 20, true);
   // hac from 5 MB / 24.00 dB to 8 MB / 24.65 dB, train 600 -> 700 s: per +0.1 dB 461.5 KB, 15.4 s.
   EXPECT_NE(md.find("| hac | 0.004 | 0.002 | +0.650 | +461.5 | +15.4 |"), std::string::npos) << md;
+  // Ablation view at equal λ: crpgs is 30% smaller than hac at the same PSNR; "far" is 100x.
+  EXPECT_NE(md.find("| crpgs | 0.004 | 3.5000 | -30.00 | 24.000 | +0.000 |"), std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| far | 0.002 | 800.0000 | +9900.00 | 40.650 | +16.000 |"), std::string::npos)
+      << md;
   EXPECT_EQ(md.find("![rd_"), std::string::npos);  // no plots asked for
   const std::string html = read_text(out->html);
   EXPECT_NE(html.find("<td>-30.00</td>"), std::string::npos);

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -444,6 +445,32 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
       md += "### BD-rate and BD-PSNR\n\n" + bd_note + md_table(bd);
       html_body +=
           "<h3>BD-rate and BD-PSNR</h3>\n<p>" + html_escape(bd_note) + "</p>\n" + html_table(bd);
+    }
+
+    // Ablation view: every other method against the first at the same rate weight, which needs
+    // no curve (an ablation sweep may run a single λ per row).
+    if (g.methods.size() >= 2) {
+      const std::string& base = g.methods[0];
+      Table same = {{"method", "λ", "size (MB)", "size vs " + base + " (%)", "PSNR (dB)",
+                     "ΔPSNR (dB)", "SSIM"}};
+      for (size_t t = 1; t < g.methods.size(); ++t)
+        for (const auto* r : g.by_method.at(g.methods[t])) {
+          const auto& by_base = g.by_method.at(base);
+          const auto b = std::find_if(by_base.begin(), by_base.end(), [&](const ReportRun* x) {
+            return std::abs(x->rate - r->rate) <= 1e-9 * std::max(std::abs(x->rate), 1e-30);
+          });
+          if (b == by_base.end()) continue;
+          const auto &m = r->metrics, &mb = (*b)->metrics;
+          same.push_back({g.methods[t], rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6),
+                          fmt("%+.2f", 100.0 * (double(m.size_bytes) / double(mb.size_bytes) - 1)),
+                          fmt("%.3f", m.psnr_mean), fmt("%+.3f", m.psnr_mean - mb.psnr_mean),
+                          fmt("%.4f", m.ssim_mean)});
+        }
+      if (same.size() > 1) {
+        const std::string title = "Against " + base + " at the same λ";
+        md += "### " + title + "\n\n" + md_table(same);
+        html_body += "<h3>" + html_escape(title) + "</h3>\n" + html_table(same);
+      }
     }
 
     // Between neighbouring points of a curve: what +0.1 dB costs in size and in time.
