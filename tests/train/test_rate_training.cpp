@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 
 #include "crpgs/codec.h"
@@ -204,11 +205,15 @@ TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
   auto bad = Config::from_string("rate: {lambda: 2}\n", "bad.yaml");
   ASSERT_TRUE(bad.ok());
   EXPECT_FALSE(bad->resolve(test::rate_registry()).ok());
-  for (const char* sweep : {"fern_rd", "fern_rd_fast", "lego_rd", "ablation"}) {
-    auto spec = experiments::load_sweep(root + "/configs/sweeps/" + sweep + ".yaml");
+  int sweeps = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(root + "/configs/sweeps")) {
+    const std::string sweep = entry.path().string();
+    auto spec = experiments::load_sweep(sweep);
     ASSERT_TRUE(spec.ok()) << sweep << ": " << spec.status().to_string();
     EXPECT_EQ(spec->rate_key, "rate.lambda") << sweep;
+    ++sweeps;
   }
+  EXPECT_GE(sweeps, 5);  // fern_rd, fern_rd_fast, lego_rd, ablation, ablation_fast
 }
 
 }  // namespace
