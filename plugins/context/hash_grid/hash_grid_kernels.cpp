@@ -92,10 +92,12 @@ std::vector<uint8_t> pack_signs(const scalar_t* table, int64_t rows, int64_t F) 
 
 constexpr int64_t kMaxPackedFeatures = 8;
 
-template <typename scalar_t>
-void forward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* table, int64_t n,
-                  bool binarize, scalar_t* out) {
-  const int64_t F = spec.n_features, width = spec.output_dim();
+/// kF > 0: the feature count as a compile-time constant (HAC's layouts use 4), so the per-corner
+/// feature loop unrolls; kF = 0 reads it from the spec.
+template <int kF, typename scalar_t>
+void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* table, int64_t n,
+                    bool binarize, scalar_t* out) {
+  const int64_t F = kF > 0 ? kF : spec.n_features, width = spec.output_dim();
   const bool packed = binarize && F <= kMaxPackedFeatures;
   const std::vector<uint8_t> signs =
       packed ? pack_signs(table, spec.n_entries, F) : std::vector<uint8_t>();
@@ -106,11 +108,12 @@ void forward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* tab
     // stay in cache.
     for (int64_t b0 = begin; b0 < end; b0 += 1024) {
       const int64_t b1 = std::min(end, b0 + 1024);
+      // One fill per block: zeroing F values per point and level compiled to a memset call each.
+      std::fill(out + b0 * width, out + b1 * width, scalar_t(0));
       for (size_t l = 0; l < spec.levels.size(); ++l) {
         const GridLevel& lv = spec.levels[l];
         for (int64_t b = b0; b < b1; ++b) {
           scalar_t* o = out + b * width + int64_t(l) * F;
-          for (int64_t f = 0; f < F; ++f) o[f] = 0;
           if (!corners(lv, pos + b * 3, w, row)) continue;
           for (int c = 0; c < (1 << lv.dim); ++c) {
             if (packed) {
@@ -130,6 +133,15 @@ void forward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* tab
       }
     }
   });
+}
+
+template <typename scalar_t>
+void forward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* table, int64_t n,
+                  bool binarize, scalar_t* out) {
+  if (spec.n_features == 4)
+    forward_impl_f<4>(spec, pos, table, n, binarize, out);
+  else
+    forward_impl_f<0>(spec, pos, table, n, binarize, out);
 }
 
 template <typename scalar_t>
