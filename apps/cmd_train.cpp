@@ -173,7 +173,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   train->add_flag("--resume", resume, "continue from the run directory's last checkpoint");
   train->add_option("--method", method,
                     "name of the method in metrics.json and reports (default: the config's file "
-                    "name; `crpgs sweep` passes the config name plus its non-rate overrides)");
+                    "name; `crpgs sweep` passes the config name plus its non-rate grid keys)");
   train->callback([&g] {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(config, g, r);

@@ -301,6 +301,22 @@ TEST(Sweep, RunOneRunsASingleRun) {
   EXPECT_FALSE(run_one(s.runs[1], s.opt).ok());
 }
 
+TEST(Sweep, TheRunsMethodWithItsGridKeysReachesTheTrainer) {
+  LocalSweep s("method");
+  // A second grid key: the method is "a schedule=fast", not the config's name.
+  const std::string yaml = "output: " + s.dir + "/runs2\nconfigs: [" + s.dir +
+                           "/a.yaml]\noverrides: {entropy.lambda: [1.0e-3], train.schedule: "
+                           "[fast]}\nrate_key: entropy.lambda\ndatasets: [{name: fern}]\n";
+  const auto runs = expand_sweep(parse_sweep(yaml, "s.yaml").value());
+  ASSERT_EQ(runs.size(), 1u);
+  EXPECT_EQ(runs[0].method, "a schedule=fast");
+  ASSERT_TRUE(run_one(runs[0], s.opt).ok());
+  EXPECT_EQ(read_text(runs[0].dir + "/method_arg"), "a schedule=fast\n");
+  // The log's command line quotes it, so it can be pasted back into a shell.
+  EXPECT_NE(read_text(runs[0].dir + "/stdout.log").find("--method 'a schedule=fast'"),
+            std::string::npos);
+}
+
 TEST(Sweep, SlurmScriptHasArrayAndResources) {
   const std::string dir = fresh_dir("slurm_script");
   auto spec = parse_sweep(sweep_yaml(dir, ""), "s.yaml");

@@ -447,8 +447,8 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
           "<h3>BD-rate and BD-PSNR</h3>\n<p>" + html_escape(bd_note) + "</p>\n" + html_table(bd);
     }
 
-    // Ablation view: every other method against the first at the same rate weight, which needs
-    // no curve (an ablation sweep may run a single λ per row).
+    // Every other method against the first (the sweep's first config) at the same rate weight:
+    // needs no curve, so an ablation sweep with a single λ per row gets its table too.
     if (g.methods.size() >= 2) {
       const std::string& base = g.methods[0];
       Table same = {{"method", "λ", "size (MB)", "size vs " + base + " (%)", "PSNR (dB)",
@@ -461,10 +461,13 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
           });
           if (b == by_base.end()) continue;
           const auto &m = r->metrics, &mb = (*b)->metrics;
-          same.push_back({g.methods[t], rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6),
-                          fmt("%+.2f", 100.0 * (double(m.size_bytes) / double(mb.size_bytes) - 1)),
-                          fmt("%.3f", m.psnr_mean), fmt("%+.3f", m.psnr_mean - mb.psnr_mean),
-                          fmt("%.4f", m.ssim_mean)});
+          same.push_back(
+              {g.methods[t], rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6),
+               mb.size_bytes > 0
+                   ? fmt("%+.2f", 100.0 * (double(m.size_bytes) / double(mb.size_bytes) - 1))
+                   : "—",
+               fmt("%.3f", m.psnr_mean), fmt("%+.3f", m.psnr_mean - mb.psnr_mean),
+               fmt("%.4f", m.ssim_mean)});
         }
       if (same.size() > 1) {
         const std::string title = "Against " + base + " at the same λ";

@@ -302,7 +302,9 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   if (resume) args.push_back("--resume");
   const std::string header = "== " + now_text() + " " + [&] {
     std::string cmd;
-    for (const auto& a : args) cmd += (cmd.empty() ? "" : " ") + a;
+    for (const auto& a : args)  // quoted where needed, so the line can be pasted into a shell
+      cmd += (cmd.empty() ? "" : " ") +
+             (a.find_first_of(" '\"$\\*?;&|<>()") != std::string::npos ? shell_quote(a) : a);
     return cmd;
   }() + "\n";
   for (const char* log : {"/stdout.log", "/stderr.log"}) {
