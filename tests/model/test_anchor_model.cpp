@@ -100,6 +100,21 @@ TEST(AnchorModel, RandomInitWithoutPoints) {
   auto m = make_model(s, o);
   EXPECT_GT(m->num_anchors(), 100);
   EXPECT_LE(m->num_anchors(), 500);
+  // Every anchor is in front of some training camera and inside its image, give or take the
+  // voxel rounding (a margin of a quarter image): an anchor no view sees could never be trained.
+  const auto a = m->anchors();
+  for (int64_t i = 0; i < a.size(0); ++i) {
+    const Eigen::Vector3d p(a[i][0].item<double>(), a[i][1].item<double>(), a[i][2].item<double>());
+    bool seen = false;
+    for (const auto& v : s.ds.train) {
+      const Camera& c = v.camera;
+      const Eigen::Vector3d q = c.R * p + c.t;
+      const double u = c.fx * q.x() / q.z() + c.cx, w = c.fy * q.y() / q.z() + c.cy;
+      seen = seen || (q.z() > 0 && u > -0.25 * c.width && u < 1.25 * c.width &&
+                      w > -0.25 * c.height && w < 1.25 * c.height);
+    }
+    ASSERT_TRUE(seen) << "anchor " << i << " at " << p.transpose() << " is seen by no view";
+  }
 }
 
 // Guards against computing (and paying for) effects the scene did not ask for.

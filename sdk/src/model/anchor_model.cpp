@@ -276,6 +276,50 @@ torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points) {
   return (d2.sum(1) / 3).clamp_min(1e-7).to(torch::kFloat);
 }
 
+namespace {
+/// [N] bool: points that project inside at least one camera's image, in front of it.
+torch::Tensor seen_by_any(const torch::Tensor& pts, const std::vector<Camera>& cameras) {
+  auto seen = torch::zeros({pts.size(0)}, torch::kBool);
+  for (const Camera& c : cameras) {
+    auto R = torch::empty({3, 3});
+    auto t = torch::empty({3});
+    for (int i = 0; i < 3; ++i) {
+      t[i] = float(c.t[i]);
+      for (int j = 0; j < 3; ++j) R[i][j] = float(c.R(i, j));
+    }
+    auto cam = pts.matmul(R.t()) + t;  // [N, 3]
+    auto z = cam.select(1, 2);
+    auto u = cam.select(1, 0) / z * float(c.fx) + float(c.cx);
+    auto v = cam.select(1, 1) / z * float(c.fy) + float(c.cy);
+    seen |= (z > RenderSettings().near_plane) & (u >= 0) & (u < float(c.width)) & (v >= 0) &
+            (v < float(c.height));
+  }
+  return seen;
+}
+
+/// `n` random points in the cube of half-size `half` about `center`, kept only where a training
+/// view sees them: an anchor no training view sees is never trained, and its Gaussians show up as
+/// haze in the test views that do see it (lego, full schedule: 8,171 of 16,911 anchors unseen;
+/// masking them took one val view from 15.6 to 32.9 dB). Falls back to the unfiltered draw if
+/// the cameras see none of it.
+torch::Tensor random_points_seen(int64_t n, double half, const torch::Tensor& center,
+                                 const std::vector<Camera>& cameras, torch::Generator& gen) {
+  auto draw = [&] { return (torch::rand({n, 3}, gen) * 2 - 1) * half + center; };
+  std::vector<torch::Tensor> kept;
+  int64_t count = 0;
+  torch::Tensor first;
+  for (int round = 0; round < 16 && count < n; ++round) {
+    auto pts = draw();
+    if (!first.defined()) first = pts;
+    auto k = pts.index({seen_by_any(pts, cameras)});
+    count += k.size(0);
+    kept.push_back(k);
+  }
+  if (count == 0) return first;
+  return torch::cat(kept).slice(0, 0, n);
+}
+}  // namespace
+
 AnchorModel::AnchorModel(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 AnchorModel::~AnchorModel() = default;
 
@@ -319,7 +363,7 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
       for (int a = 0; a < 3; ++a) acc[int64_t(i)][a] = init.points[i][size_t(a)];
   } else {
     const int64_t n = std::max(1, options.random_init_points);
-    pts = (torch::rand({n, 3}, gen) * 2 - 1) * (radius / 1.1) + mean_c.to(torch::kFloat);
+    pts = random_points_seen(n, radius / 1.1, mean_c.to(torch::kFloat), init.train_cameras, gen);
   }
 
   // 3. Voxelise: unique(round(p / v)) * v (v automatic when voxel_size <= 0).
