@@ -106,7 +106,8 @@ void print_bitstream_report(const BitstreamReport& r) {
               r.quantized_psnr, r.decoded_psnr);
   if (r.links_built >= 0)
     std::printf(
-        "links: %lld at the end of training, %lld coded (the others had a masked leaf or root)\n",
+        "links: %lld at the end of training, %lld coded (the others had a masked leaf or root, "
+        "or, with rate.prune_links, saved fewer feature bits than the link costs)\n",
         static_cast<long long>(r.links_built), static_cast<long long>(r.links_coded));
   if (r.link_rate) print_link_rate_report(*r.link_rate, r.link_side_bytes);
 }
