@@ -149,7 +149,8 @@ struct AnchorInit {
 
 class AnchorModel {
  public:
-  /// Builds anchors from the points (or randomly inside the cameras' bounds when there are none),
+  /// Builds anchors from the points (or, when there are none, from random points inside the
+  /// cameras' bounds that at least one training view sees),
   /// the MLPs (default Linear init drawn from `gen`) and the optimizer state. `features` decides
   /// the width of the stored (coded) feature and of the feature the MLPs see.
   static StatusOr<std::unique_ptr<AnchorModel>> create(const AnchorModelOptions& options,

@@ -97,7 +97,8 @@ const std::vector<CoreSection>& core_sections() {
            range(P("mask_threshold", T::kFloat, YAML::Node(0.01), "offset mask: sigmoid threshold"),
                  0, 1),
            range(P("random_init_points", T::kInt, YAML::Node(20000),
-                   "points drawn inside the camera bounds when the dataset has none"),
+                   "points drawn inside the camera bounds, where a training view sees them, when "
+                   "the dataset has none"),
                  1, 1e8),
        })},
       {"train",
