@@ -221,6 +221,44 @@ TEST(HashGridComponent, OutputsTheEntropyParameterLayout) {
   EXPECT_EQ(narrow->output_dim(), 135);
 }
 
+TEST(HashGridComponent, PartialForwardMatchesForward) {
+  auto grid = make_grid();
+  ASSERT_TRUE(grid);
+  const auto pos = random_positions(400, torch::kFloat, 9);
+  const auto full = grid->forward(pos).detach();
+  const auto part = grid->forward_partial(pos, 3);
+  ASSERT_EQ(part.tail.sizes(), torch::IntArrayRef({400, 3}));
+  EXPECT_TRUE(torch::allclose(part.tail, full.slice(1, 172), 1e-5, 1e-6));
+  const auto rows = torch::tensor({399, 0, 17, 17}, torch::kLong);
+  const auto picked = part.rows(rows);
+  ASSERT_EQ(picked.sizes(), torch::IntArrayRef({4, 175}));
+  EXPECT_TRUE(torch::allclose(picked, full.index_select(0, rows), 1e-5, 1e-6));
+
+  // Both parts reach the grid table and the output layer: the tail through its three rows of
+  // weight2, the picked rows through all of them.
+  (part.tail.sum() + picked.sum()).backward();
+  const auto params = grid->parameters();
+  EXPECT_GT(params[0].grad().abs().sum().item<float>(), 0.f);
+  const auto w2_grad = params[3].grad();
+  EXPECT_GT(w2_grad.slice(0, 0, 172).abs().sum().item<float>(), 0.f);
+  EXPECT_GT(w2_grad.slice(0, 172).abs().sum().item<float>(), 0.f);
+}
+
+TEST(ContextModelDefault, PartialForwardSlicesForward) {
+  struct Fixed : ContextModel {
+    std::string type_name() const override { return "fixed"; }
+    YAML::Node hyperparams() const override { return {}; }
+    int64_t output_dim() const override { return 4; }
+    torch::Tensor forward(const torch::Tensor& p) override {
+      return torch::arange(p.size(0) * 4, torch::kFloat).reshape({p.size(0), 4});
+    }
+  } fixed;
+  const auto part = fixed.forward_partial(torch::zeros({3, 3}), 1);
+  EXPECT_TRUE(torch::equal(part.tail, torch::tensor({3.f, 7.f, 11.f}).unsqueeze(1)));
+  EXPECT_TRUE(torch::equal(part.rows(torch::tensor({2}, torch::kLong)),
+                           torch::tensor({8.f, 9.f, 10.f, 11.f}).unsqueeze(0)));
+}
+
 TEST(HashGridComponent, LevelCountMustMatchResolutions) {
   auto cfg = Config::from_string("context: {type: hash_grid, n_levels: 3}\n", "t.yaml");
   ASSERT_TRUE(cfg.ok());

@@ -61,10 +61,17 @@ class HashGridContext final : public ContextModel {
   int64_t output_dim() const override { return width_; }
 
   torch::Tensor forward(const torch::Tensor& positions01) override {
-    TORCH_CHECK(positions01.dim() == 2 && positions01.size(1) == 3,
-                "hash_grid: positions must be [N, 3], got ", positions01.sizes());
-    const auto feat = hash_grid::grid_lookup(spec_, positions01, table_, grid_.binarize);
-    return l2_->forward(torch::relu(l1_->forward(feat)));  // feat: [N, grid output_dim]
+    return l2_->forward(hidden(positions01));
+  }
+
+  PartialOutput forward_partial(const torch::Tensor& positions01, int64_t tail) override {
+    TORCH_CHECK(tail >= 0 && tail <= width_, "hash_grid: tail must be in [0, ", width_, "]");
+    auto h = hidden(positions01);
+    const int64_t first = width_ - tail;
+    auto out_tail = torch::linear(h, l2_->weight.slice(0, first), l2_->bias.slice(0, first));
+    return {out_tail, [h, w = l2_->weight, b = l2_->bias](const torch::Tensor& rows) {
+              return torch::linear(h.index_select(0, rows), w, b);
+            }};
   }
 
   /// HAC's B_h over the whole table, differentiable through the straight-through estimator;
@@ -114,6 +121,14 @@ class HashGridContext final : public ContextModel {
     const auto targets = mlp_tensors();
     for (size_t i = 0; i < targets.size(); ++i) targets[i].copy_(mlp[i]);
     return OkStatus();
+  }
+
+  /// mlp_grid's hidden activations: relu(l1(grid(x))).
+  torch::Tensor hidden(const torch::Tensor& positions01) {
+    TORCH_CHECK(positions01.dim() == 2 && positions01.size(1) == 3,
+                "hash_grid: positions must be [N, 3], got ", positions01.sizes());
+    const auto feat = hash_grid::grid_lookup(spec_, positions01, table_, grid_.binarize);
+    return torch::relu(l1_->forward(feat));  // feat: [N, grid output_dim]
   }
 
   hash_grid::GridConfig grid_;

@@ -5,6 +5,8 @@
 /// Both return the same forms whichever made them, so the pipeline cannot tell them apart.
 #pragma once
 
+#include <functional>
+
 #include <torch/types.h>
 
 #include "crpgs/component.h"
@@ -28,6 +30,18 @@ class ContextModel : public Component {
   /// component decides what they read). Returns [N, output_dim()].
   virtual torch::Tensor forward(const torch::Tensor& positions01) {
     return torch::zeros({positions01.size(0), 0}, positions01.options());
+  }
+  /// forward() as training needs it: the last `tail` columns for every row, the whole row only
+  /// for the rows asked for later. Every visible anchor needs its quantisation steps, only the
+  /// rate subset (5 %) its means and scales, so a grid context skips ~98 % of its output layer.
+  struct PartialOutput {
+    torch::Tensor tail;                                            ///< [N, tail]
+    std::function<torch::Tensor(const torch::Tensor& rows)> rows;  ///< int64 rows -> [R, width]
+  };
+  virtual PartialOutput forward_partial(const torch::Tensor& positions01, int64_t tail) {
+    auto out = forward(positions01);
+    return {out.slice(1, out.size(1) - tail),
+            [out](const torch::Tensor& rows) { return out.index_select(0, rows); }};
   }
   /// Link strategies: int64 [N], entry i = index of the root anchor i is conditioned on, or -1.
   /// One hop only: a root is never itself a leaf. Grid contexts return all -1.

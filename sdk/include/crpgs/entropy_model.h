@@ -16,7 +16,9 @@ namespace crpgs {
 /// sigma_s [6 each], mu_o, sigma_o [3K each], then a_f, a_s, a_o (step refinements).
 struct EntropyParamLayout {
   int64_t coded_dim = 50, n_offsets = 10;
-  int64_t width() const { return 2 * (coded_dim + 6 + 3 * n_offsets) + 3; }
+  /// The last columns: the step adjustments a_f, a_s, a_o (Q = Q0·(1 + tanh a)).
+  static constexpr int64_t kStepColumns = 3;
+  int64_t width() const { return 2 * (coded_dim + 6 + 3 * n_offsets) + kStepColumns; }
 };
 
 class EntropyModel : public Component {

@@ -33,6 +33,9 @@ struct EntropyParams {
 EntropyParams split_entropy_params(const torch::Tensor& context_out,
                                    const EntropyParamLayout& layout, const QuantSteps& q0);
 
+/// Sets p's q_f, q_s, q_o from the step-adjustment columns [N, kStepColumns] (the layout's last).
+void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p);
+
 /// Evaluates `context` on positions01 in fixed chunks of `chunk` rows, in order, and splits.
 /// The codec calls it with the same chunking on both sides, so GEMM shapes (and therefore
 /// rounding) are identical in the encoder and the decoder.

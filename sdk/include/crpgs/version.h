@@ -9,7 +9,8 @@
 
 // Plugin ABI history (bump on any change to plugin_abi.h or to a component interface header):
 //   1: first version: crpgs_plugin_v1() descriptor, YAML schema, create/destroy with status.
-#define CRPGS_PLUGIN_ABI_VERSION 1
+//   2: ContextModel::forward_partial.
+#define CRPGS_PLUGIN_ABI_VERSION 2
 
 namespace crpgs {
 /// Compiled-in features and toolchain, e.g. for `crpgs --version`.

@@ -12,7 +12,7 @@ EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamL
   TORCH_CHECK(out.dim() == 2 && out.size(1) == layout.width(), "context output must be [N, ",
               layout.width(), "], got ", out.sizes());
   const int64_t dc = layout.coded_dim, ko = 3 * layout.n_offsets;
-  auto parts = torch::split_with_sizes(out, {dc, dc, 6, 6, ko, ko, 1, 1, 1}, 1);
+  auto parts = torch::split_with_sizes(out, {dc, dc, 6, 6, ko, ko, EntropyParamLayout::kStepColumns}, 1);
   EntropyParams p;
   p.mu_f = parts[0];
   p.sigma_f = parts[1];
@@ -20,10 +20,17 @@ EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamL
   p.sigma_s = parts[3];
   p.mu_o = parts[4];
   p.sigma_o = parts[5];
-  p.q_f = q0.feature * (1 + torch::tanh(parts[6]));
-  p.q_s = q0.scaling * (1 + torch::tanh(parts[7]));
-  p.q_o = q0.offset * (1 + torch::tanh(parts[8]));
+  set_quant_steps(parts[6], q0, &p);
   return p;
+}
+
+void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p) {
+  TORCH_CHECK(step_columns.dim() == 2 && step_columns.size(1) == EntropyParamLayout::kStepColumns,
+              "step columns must be [N, 3], got ", step_columns.sizes());
+  const auto a = torch::tanh(step_columns) + 1;
+  p->q_f = q0.feature * a.slice(1, 0, 1);
+  p->q_s = q0.scaling * a.slice(1, 1, 2);
+  p->q_o = q0.offset * a.slice(1, 2, 3);
 }
 
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,

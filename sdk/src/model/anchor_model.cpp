@@ -65,13 +65,22 @@ torch::Tensor normalise(const torch::Tensor& pos, const torch::Tensor& bounds) {
   return (pos - lo) / (hi - lo).clamp_min(1e-9);
 }
 
-// Mean of all elements, summed serially in double: identical for any thread count.
+// Mean of all elements in double, in a fixed order (identical for any thread count): eight
+// interleaved partial sums, so the loop is not one chain of dependent additions (training calls
+// this on every anchor's features each iteration).
 float serial_mean(const torch::Tensor& t) {
   auto c = t.detach().to(torch::kFloat).contiguous();
   const float* d = c.data_ptr<float>();
+  const int64_t n = c.numel();
+  constexpr int64_t kLanes = 8;
+  double lane[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int64_t l = 0; l < kLanes; ++l) lane[l] += d[i + l];
+  for (; i < n; ++i) lane[i % kLanes] += d[i];
   double s = 0;
-  for (int64_t i = 0; i < c.numel(); ++i) s += d[i];
-  return c.numel() ? float(s / double(c.numel())) : 0.f;
+  for (double v : lane) s += v;
+  return n ? float(s / double(n)) : 0.f;
 }
 
 // x clamped to mean +- 15000 q (q broadcasts; method.md §2.2).
@@ -795,17 +804,19 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
     mask_v = ste_mask(m.p(m.i_mask).index_select(0, idx), m.opt.mask_threshold);
   // Training-time quantisation (method.md §2.3): uniform noise of one step.
   if (for_training && !rv && m.context && m.phase != QuantPhase::kRaw) {
-    EntropyParams ep;
+    const EntropyParamLayout layout{m.features_model->coded_dim(), K};
+    ContextModel::PartialOutput ctx;
     if (m.phase == QuantPhase::kFixedNoise) {
       out.q_f = torch::full({M, 1}, m.rate.q0.feature);
       out.q_s = torch::full({M, 1}, m.rate.q0.scaling);
       out.q_o = torch::full({M, 1}, m.rate.q0.offset);
     } else {
-      ep = split_entropy_params(m.context->forward(pos01_v), {m.features_model->coded_dim(), K},
-                                m.rate.q0);
-      out.q_f = ep.q_f;
-      out.q_s = ep.q_s;
-      out.q_o = ep.q_o;
+      ctx = m.context->forward_partial(pos01_v, EntropyParamLayout::kStepColumns);
+      EntropyParams steps;
+      set_quant_steps(ctx.tail, m.rate.q0, &steps);
+      out.q_f = steps.q_f;
+      out.q_s = steps.q_s;
+      out.q_o = steps.q_o;
     }
     auto noise = [&](const torch::Tensor& x) {
       return torch::rand(x.sizes(), m.gen_opt(), x.options()) - 0.5;
@@ -829,14 +840,15 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
                         const torch::Tensor& sigma, const torch::Tensor& q) {
           return m.entropy->bits(clamp_about(x, mean, q), mu, sigma, q);
         };
-        auto q_f = sel(ep.q_f), q_s = sel(ep.q_s), q_o = sel(ep.q_o);
-        auto mu_f = sel(ep.mu_f);
-        mu_f = feature_means(idx.index_select(0, chosen), mu_f);
-        auto b_f = bits(sel(feat_c), serial_mean(m.p(m.i_feat)), mu_f, sel(ep.sigma_f), q_f);
-        auto b_s = bits(sel(scal_v), serial_mean(torch::exp(m.p(m.i_scaling).detach())),
-                        sel(ep.mu_s), sel(ep.sigma_s), q_s);
-        auto b_o = bits(sel(offs_v).reshape({S, 3 * K}), serial_mean(m.p(m.i_offset)), sel(ep.mu_o),
-                        sel(ep.sigma_o), q_o);
+        // Means and scales of the subset only; its steps are those its noise used.
+        const EntropyParams ep = split_entropy_params(ctx.rows(chosen), layout, m.rate.q0);
+        auto q_f = sel(out.q_f), q_s = sel(out.q_s), q_o = sel(out.q_o);
+        auto mu_f = feature_means(idx.index_select(0, chosen), ep.mu_f);
+        auto b_f = bits(sel(feat_c), serial_mean(m.p(m.i_feat)), mu_f, ep.sigma_f, q_f);
+        auto b_s = bits(sel(scal_v), serial_mean(torch::exp(m.p(m.i_scaling).detach())), ep.mu_s,
+                        ep.sigma_s, q_s);
+        auto b_o = bits(sel(offs_v).reshape({S, 3 * K}), serial_mean(m.p(m.i_offset)), ep.mu_o,
+                        ep.sigma_o, q_o);
         b_o = b_o * sel(mask_r).unsqueeze(2).expand({S, K, 3}).reshape({S, 3 * K});
         const double n_elem = double(S * (feat_c.size(1) + 6 + 3 * K));
         out.bits_per_param = (b_f.sum() + b_s.sum() + b_o.sum()) / n_elem * active_fraction;
