@@ -12,7 +12,8 @@ EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamL
   TORCH_CHECK(out.dim() == 2 && out.size(1) == layout.width(), "context output must be [N, ",
               layout.width(), "], got ", out.sizes());
   const int64_t dc = layout.coded_dim, ko = 3 * layout.n_offsets;
-  auto parts = torch::split_with_sizes(out, {dc, dc, 6, 6, ko, ko, EntropyParamLayout::kStepColumns}, 1);
+  auto parts =
+      torch::split_with_sizes(out, {dc, dc, 6, 6, ko, ko, EntropyParamLayout::kStepColumns}, 1);
   EntropyParams p;
   p.mu_f = parts[0];
   p.sigma_f = parts[1];
