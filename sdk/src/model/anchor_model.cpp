@@ -877,31 +877,38 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   auto opacity = torch::tanh(m.mlp_opacity.forward(input));  // [M, K]
   if (mask_v.defined()) opacity = opacity * mask_v;
   out.neural_opacity = opacity.detach();
-  auto color_in = input;
-  if (fx.appearance_dim > 0) {
-    auto& emb = m.p(m.i_app);
-    auto e = camera_index >= 0 && camera_index < emb.size(0) ? emb[camera_index] : emb.mean(0);
-    color_in = torch::cat({input, e.unsqueeze(0).expand({M, e.size(0)})}, 1);
-  }
-  auto color = torch::sigmoid(m.mlp_color.forward(color_in)).reshape({M * K, 3});
-  auto cov = m.mlp_cov.forward(input).reshape({M * K, 7});
   auto flat_op = opacity.reshape({M * K});
   out.selection = flat_op > 0;                     // [M*K]
   auto keep = out.selection.nonzero().squeeze(1);  // [G]
   out.source = (idx.unsqueeze(1) * K + torch::arange(K, idx.options()))
                    .reshape({M * K})
                    .index_select(0, keep);
-  auto anchor_of = keep.div(K, "floor");        // row in the visible set
+  auto anchor_of = keep.div(K, "floor");  // row in the visible set
+  // Colour and covariance only for the anchors with a Gaussian left: the other rows would be
+  // discarded (and get no gradient).
+  auto live = opacity.detach().gt(0).any(1).nonzero().squeeze(1);  // [L]
+  const int64_t L = live.size(0);
+  auto live_row = torch::full({M}, -1, idx.options()).index_put_({live}, torch::arange(L));
+  auto live_keep = live_row.index_select(0, anchor_of) * K + keep.remainder(K);  // into [L*K]
+  auto input_l = input.index_select(0, live);
+  auto color_in = input_l;
+  if (fx.appearance_dim > 0) {
+    auto& emb = m.p(m.i_app);
+    auto e = camera_index >= 0 && camera_index < emb.size(0) ? emb[camera_index] : emb.mean(0);
+    color_in = torch::cat({input_l, e.unsqueeze(0).expand({L, e.size(0)})}, 1);
+  }
+  auto color = torch::sigmoid(m.mlp_color.forward(color_in)).reshape({L * K, 3});
+  auto cov = m.mlp_cov.forward(input_l).reshape({L * K, 7});
   auto sc = scal_v.index_select(0, anchor_of);  // [G, 6]
   auto offs = offs_v.reshape({M * K, 3}).index_select(0, keep);
-  auto cv = cov.index_select(0, keep);  // [G, 7]
+  auto cv = cov.index_select(0, live_keep);  // [G, 7]
   GaussianBatch& b = out.batch;
   b.means = anchor_v.index_select(0, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
   b.scales = sc.index({Slice(), Slice(3, 6)}) * torch::sigmoid(cv.index({Slice(), Slice(0, 3)}));
   b.rotations = torch::nn::functional::normalize(
       cv.index({Slice(), Slice(3, 7)}), torch::nn::functional::NormalizeFuncOptions().dim(1));
   b.opacities = flat_op.index_select(0, keep);
-  b.colors = color.index_select(0, keep);
+  b.colors = color.index_select(0, live_keep);
   if (for_training) b.means2d_grad_holder = torch::zeros({keep.size(0), 2}).requires_grad_(true);
   return out;
 }
