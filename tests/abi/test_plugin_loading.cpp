@@ -5,6 +5,7 @@
 #include <string>
 
 #include "crpgs/registry.h"
+#include "crpgs/version.h"
 
 namespace crpgs {
 namespace {
@@ -36,7 +37,10 @@ TEST(PluginLoading, LibraryWithoutEntryPoint) {
                   "not a crpgs plugin (no symbol crpgs_plugin_v1)");
 }
 TEST(PluginLoading, WrongAbiVersion) {
-  expect_rejected("wrong_abi", StatusCode::kPluginAbiMismatch, "plugin ABI 42, host expects 1");
+  const std::string host = std::to_string(CRPGS_PLUGIN_ABI_VERSION);
+  expect_rejected(
+      "wrong_abi", StatusCode::kPluginAbiMismatch,
+      "plugin ABI " + std::to_string(CRPGS_PLUGIN_ABI_VERSION + 41) + ", host expects " + host);
 }
 TEST(PluginLoading, MismatchedBuildInfo) {
   expect_rejected("bad_build_info", StatusCode::kPluginAbiMismatch,
