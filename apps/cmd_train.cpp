@@ -4,6 +4,7 @@
 #include <filesystem>
 
 #include "cli_common.h"
+#include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/trainer.h"
 #include "progress_bar.h"
@@ -51,8 +52,9 @@ class CliProgress final : public ProgressCallback {
 /// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
                  bool resume, const std::string& method = "") {
-  std::error_code ec;
-  fs::create_directories(out_dir, ec);
+  // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
+  auto lock = lock_directory(out_dir);
+  if (!lock.ok()) return report_error(lock.status());
   Status st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());

@@ -5,12 +5,14 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <set>
 #include <sstream>
 #include <thread>
 
 #include "crpgs/config.h"
+#include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/experiments/sweep.h"
 #include "experiments/exp_test_util.h"
@@ -263,6 +265,30 @@ TEST(Sweep, ResumesAfterTheSweepItselfWasKilled) {
   EXPECT_EQ(rerun.count(s.runs[0].dir), 0u);           // finished runs are not rerun
   EXPECT_EQ(rerun.count(s.runs[1].dir), 0u);
   for (const auto& r : s.runs) EXPECT_EQ(run_state(r.dir), RunState::kComplete) << r.id;
+}
+
+TEST(Sweep, SkipsARunAnotherProcessHolds) {
+  LocalSweep s("locked");
+  auto lock = lock_directory(s.runs[2].dir);  // as a `crpgs train -o` elsewhere would
+  ASSERT_TRUE(lock.ok());
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(sum.ok());
+  EXPECT_EQ(sum->succeeded, 5);
+  EXPECT_EQ(sum->skipped, 1);
+  EXPECT_EQ(s.calls().size(), 5u);
+  EXPECT_EQ(run_state(s.runs[2].dir), RunState::kPending);
+  const std::string expected =
+      s.runs[2].id + ": running in another process (pid " + std::to_string(::getpid()) + " since ";
+  EXPECT_TRUE(std::any_of(s.lines.begin(), s.lines.end(), [&](const std::string& l) {
+    return l.find(expected) != std::string::npos;
+  }));
+
+  lock = DirectoryLock();  // the other process is done: the next pass runs it
+  auto again = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->succeeded, 1);
+  EXPECT_EQ(again->skipped, 5);
+  EXPECT_EQ(run_state(s.runs[2].dir), RunState::kComplete);
 }
 
 TEST(Sweep, DryRunStartsNothing) {

@@ -21,6 +21,7 @@
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/config.h"
+#include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "io/json_writer.h"
 
@@ -354,6 +355,9 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     if (st == RunState::kComplete) {
       ++sum.skipped;
       log(tag + ": done, skipped");
+    } else if (const std::string holder = directory_lock_holder(r.dir); !holder.empty()) {
+      ++sum.skipped;  // another sweep or `crpgs train` is on it
+      log(tag + ": running in another process (" + holder + "), skipped");
     } else {
       if (opt.dry_run) {
         auto cfg = build_run_config(r, opt.registry);

@@ -1,0 +1,39 @@
+/// @file dir_lock.h
+/// @brief One writer per run directory: `crpgs train -o DIR` holds DIR/.lock while it writes, and
+/// `crpgs sweep` skips a run whose directory another process holds, so two processes never
+/// train into (and overwrite) the same checkpoint.
+#pragma once
+
+#include <string>
+
+#include "crpgs/status.h"
+
+namespace crpgs {
+
+/// An exclusive lock on DIR/.lock (a Linux open-file-description lock): released when the object
+/// is destroyed, and by the kernel when the process ends in any way, so a crash leaves no stale
+/// lock. Not inherited by spawned processes.
+class DirectoryLock {
+ public:
+  DirectoryLock() = default;
+  DirectoryLock(DirectoryLock&& o) noexcept : fd_(o.fd_) { o.fd_ = -1; }
+  DirectoryLock& operator=(DirectoryLock&& o) noexcept;
+  DirectoryLock(const DirectoryLock&) = delete;
+  DirectoryLock& operator=(const DirectoryLock&) = delete;
+  ~DirectoryLock();
+  bool held() const { return fd_ >= 0; }
+
+ private:
+  friend StatusOr<DirectoryLock> lock_directory(const std::string& dir);
+  explicit DirectoryLock(int fd) : fd_(fd) {}
+  int fd_ = -1;
+};
+
+/// Creates DIR if needed and takes its lock. kIoError naming the holder ("pid 123 since
+/// 2026-11-24 00:10:00") when another process (or another DirectoryLock) holds it.
+StatusOr<DirectoryLock> lock_directory(const std::string& dir);
+
+/// Who holds DIR's lock ("pid 123 since ..."), or "" when nobody does (or DIR has no lock file).
+std::string directory_lock_holder(const std::string& dir);
+
+}  // namespace crpgs

@@ -1,0 +1,88 @@
+/// @file dir_lock.cpp
+#include "crpgs/dir_lock.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+
+namespace crpgs {
+namespace {
+
+constexpr const char* kLockName = "/.lock";
+
+struct flock whole_file(short type) {
+  struct flock fl {};
+  fl.l_type = type;
+  fl.l_whence = SEEK_SET;  // l_start = l_len = 0: the whole file
+  return fl;
+}
+
+std::string read_holder(int fd) {
+  char buf[128] = {};
+  const ssize_t n = ::pread(fd, buf, sizeof buf - 1, 0);
+  std::string s = n > 0 ? std::string(buf, size_t(n)) : std::string();
+  while (!s.empty() && (s.back() == '\n' || s.back() == '\0')) s.pop_back();
+  return s.empty() ? "another process" : s;
+}
+
+}  // namespace
+
+DirectoryLock& DirectoryLock::operator=(DirectoryLock&& o) noexcept {
+  if (this != &o) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = o.fd_;
+    o.fd_ = -1;
+  }
+  return *this;
+}
+
+DirectoryLock::~DirectoryLock() {
+  if (fd_ >= 0) ::close(fd_);  // closing the description releases the lock
+}
+
+StatusOr<DirectoryLock> lock_directory(const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  const std::string path = dir + kLockName;
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0)
+    return Status(StatusCode::kIoError, "cannot open " + path + ": " + std::strerror(errno));
+  struct flock fl = whole_file(F_WRLCK);
+  if (::fcntl(fd, F_OFD_SETLK, &fl) != 0) {
+    const int err = errno;
+    const std::string holder =
+        err == EAGAIN || err == EACCES ? read_holder(fd) : std::string(std::strerror(err));
+    ::close(fd);
+    return Status(StatusCode::kIoError,
+                  dir + " is in use (" + holder +
+                      "): another crpgs process is writing there; wait for it or pick another "
+                      "output directory");
+  }
+  char when[32];
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", &tm);
+  const std::string text = "pid " + std::to_string(::getpid()) + " since " + when + "\n";
+  // Only the holder writes here. A failed write still locks; messages then name no pid.
+  const bool named =
+      ::ftruncate(fd, 0) == 0 && ::pwrite(fd, text.data(), text.size(), 0) == ssize_t(text.size());
+  static_cast<void>(named);
+  return DirectoryLock(fd);
+}
+
+std::string directory_lock_holder(const std::string& dir) {
+  const int fd = ::open((dir + kLockName).c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return "";
+  struct flock fl = whole_file(F_WRLCK);
+  std::string holder;
+  if (::fcntl(fd, F_OFD_GETLK, &fl) == 0 && fl.l_type != F_UNLCK) holder = read_holder(fd);
+  ::close(fd);
+  return holder;
+}
+
+}  // namespace crpgs

@@ -1,0 +1,77 @@
+// DirectoryLock: one writer per run directory, released on destruction and when the holder dies.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+
+#include "crpgs/dir_lock.h"
+
+namespace crpgs {
+namespace {
+
+std::string fresh_lock_dir(const std::string& name) {
+  const auto p = std::filesystem::path(CRPGS_TEST_TMP_DIR) / "dir_lock" / name;
+  std::filesystem::remove_all(p);
+  return p.string();  // lock_directory creates it
+}
+
+TEST(DirectoryLock, SecondHolderIsRefusedWithTheFirstOnesPid) {
+  const std::string dir = fresh_lock_dir("twice");
+  EXPECT_EQ(directory_lock_holder(dir), "");  // no directory yet
+  auto first = lock_directory(dir);
+  ASSERT_TRUE(first.ok()) << first.status().message();
+  const std::string me = "pid " + std::to_string(::getpid()) + " since ";
+  EXPECT_EQ(directory_lock_holder(dir).rfind(me, 0), 0u) << directory_lock_holder(dir);
+
+  auto second = lock_directory(dir);  // another open description: refused even in this process
+  ASSERT_FALSE(second.ok());
+  EXPECT_EQ(second.status().code(), StatusCode::kIoError);
+  EXPECT_NE(second.status().message().find(dir + " is in use (" + me), std::string::npos)
+      << second.status().message();
+
+  first = DirectoryLock();  // released
+  EXPECT_EQ(directory_lock_holder(dir), "");
+  auto third = lock_directory(dir);
+  EXPECT_TRUE(third.ok()) << third.status().message();
+}
+
+TEST(DirectoryLock, MovedLockStaysHeld) {
+  const std::string dir = fresh_lock_dir("moved");
+  auto lock = lock_directory(dir);
+  ASSERT_TRUE(lock.ok());
+  DirectoryLock moved = std::move(lock).value();
+  EXPECT_TRUE(moved.held());
+  EXPECT_FALSE(lock_directory(dir).ok());
+}
+
+TEST(DirectoryLock, AHolderThatDiesLeavesNoStaleLock) {
+  const std::string dir = fresh_lock_dir("died");
+  int ready[2], go[2];
+  ASSERT_EQ(::pipe(ready), 0);
+  ASSERT_EQ(::pipe(go), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    auto lock = lock_directory(dir);
+    char c = lock.ok() ? '1' : '0';
+    if (::write(ready[1], &c, 1) != 1 || ::read(go[0], &c, 1) != 1) ::_exit(3);
+    ::_exit(1);  // no destructor runs: only the kernel can release the lock
+  }
+  char c = 0;
+  ASSERT_EQ(::read(ready[0], &c, 1), 1);
+  ASSERT_EQ(c, '1');
+  const std::string holder = directory_lock_holder(dir);
+  EXPECT_EQ(holder.rfind("pid " + std::to_string(child) + " since ", 0), 0u) << holder;
+  EXPECT_FALSE(lock_directory(dir).ok());
+  ASSERT_EQ(::write(go[1], "x", 1), 1);
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  EXPECT_EQ(directory_lock_holder(dir), "");
+  EXPECT_TRUE(lock_directory(dir).ok());
+  for (int fd : {ready[0], ready[1], go[0], go[1]}) ::close(fd);
+}
+
+}  // namespace
+}  // namespace crpgs
