@@ -6,8 +6,9 @@
 
 #include <cerrno>
 #include <cstring>
-#include <ctime>
 #include <filesystem>
+
+#include "core/time_text.h"
 
 namespace crpgs {
 namespace {
@@ -54,20 +55,18 @@ StatusOr<DirectoryLock> lock_directory(const std::string& dir) {
   struct flock fl = whole_file(F_WRLCK);
   if (::fcntl(fd, F_OFD_SETLK, &fl) != 0) {
     const int err = errno;
-    const std::string holder =
-        err == EAGAIN || err == EACCES ? read_holder(fd) : std::string(std::strerror(err));
+    const bool busy = err == EAGAIN || err == EACCES;
+    const std::string holder = busy ? read_holder(fd) : std::string();
     ::close(fd);
+    if (!busy)
+      return Status(StatusCode::kIoError, "cannot lock " + path + ": " + std::strerror(err));
     return Status(StatusCode::kIoError,
                   dir + " is in use (" + holder +
                       "): another crpgs process is writing there; wait for it or pick another "
                       "output directory");
   }
-  char when[32];
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  localtime_r(&t, &tm);
-  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S", &tm);
-  const std::string text = "pid " + std::to_string(::getpid()) + " since " + when + "\n";
+  const std::string text =
+      "pid " + std::to_string(::getpid()) + " since " + local_time_text() + "\n";
   // Only the holder writes here. A failed write still locks; messages then name no pid.
   const bool named =
       ::ftruncate(fd, 0) == 0 && ::pwrite(fd, text.data(), text.size(), 0) == ssize_t(text.size());

@@ -12,13 +12,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <ctime>
 #include <filesystem>
 #include <map>
 #include <set>
 
 #include <yaml-cpp/yaml.h>
 
+#include "core/time_text.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/config.h"
 #include "crpgs/dir_lock.h"
@@ -63,15 +63,6 @@ std::string sanitize(const std::string& s) {
 std::string last_part(const std::string& key) {
   const size_t dot = key.rfind('.');
   return dot == std::string::npos ? key : key.substr(dot + 1);
-}
-
-std::string now_text() {
-  char buf[64];
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  localtime_r(&t, &tm);
-  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M:%S", &tm);
-  return buf;
 }
 
 std::string shell_quote(const std::string& s) {
@@ -296,12 +287,13 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
   CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
   fs::remove(run.dir + "/metrics.json", ec);  // stale from an interrupted attempt
-  CRPGS_RETURN_IF_ERROR(write_file_atomic(run.dir + "/.running", "started " + now_text() + "\n"));
+  CRPGS_RETURN_IF_ERROR(
+      write_file_atomic(run.dir + "/.running", "started " + local_time_text() + "\n"));
 
   std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",
                                    "-o",       run.dir, "--method", run.method};
   if (resume) args.push_back("--resume");
-  const std::string header = "== " + now_text() + " " + [&] {
+  const std::string header = "== " + local_time_text() + " " + [&] {
     std::string cmd;
     for (const auto& a : args)  // quoted where needed, so the line can be pasted into a shell
       cmd += (cmd.empty() ? "" : " ") +
