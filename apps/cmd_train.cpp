@@ -55,6 +55,9 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
   auto lock = lock_directory(out_dir);
   if (!lock.ok()) return report_error(lock.status());
+  if (!lock->held())
+    std::fprintf(stderr, "warning: %s cannot be locked here; make sure no other run writes there\n",
+                 out_dir.c_str());
   Status st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());

@@ -30,7 +30,8 @@ class DirectoryLock {
 };
 
 /// Creates DIR if needed and takes its lock. kIoError naming the holder ("pid 123 since
-/// 2026-11-24 00:10:00") when another process (or another DirectoryLock) holds it.
+/// 2026-11-24 00:10:00") when another process (or another DirectoryLock) holds it. Where the
+/// file system cannot lock (some network file systems), an unheld lock: check held().
 StatusOr<DirectoryLock> lock_directory(const std::string& dir);
 
 /// Who holds DIR's lock ("pid 123 since ..."), or "" when nobody does (or DIR has no lock file).

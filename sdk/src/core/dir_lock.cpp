@@ -58,8 +58,7 @@ StatusOr<DirectoryLock> lock_directory(const std::string& dir) {
     const bool busy = err == EAGAIN || err == EACCES;
     const std::string holder = busy ? read_holder(fd) : std::string();
     ::close(fd);
-    if (!busy)
-      return Status(StatusCode::kIoError, "cannot lock " + path + ": " + std::strerror(err));
+    if (!busy) return DirectoryLock();  // e.g. ENOLCK on some network file systems
     return Status(StatusCode::kIoError,
                   dir + " is in use (" + holder +
                       "): another crpgs process is writing there; wait for it or pick another "
