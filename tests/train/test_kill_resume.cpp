@@ -4,6 +4,7 @@
 /// uninterrupted run of the same config.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
@@ -11,6 +12,7 @@
 #include <thread>
 
 #include "cli_test_util.h"
+#include "crpgs/dir_lock.h"
 
 namespace crpgs {
 namespace {
@@ -83,6 +85,24 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
     ASSERT_TRUE(ckpt.count("iteration")) << "checkpoint left by the kill is incomplete";
     resumed_from = int(ckpt.at("iteration").item<int64_t>());
     EXPECT_EQ(resumed_from % 4, 0);
+  }
+  // The killed process left no stale lock (the resume below gets it), and while another process
+  // holds the directory a second writer is refused without touching it.
+  {
+    auto held = lock_directory(run.string());
+    ASSERT_TRUE(held.ok()) << "the SIGKILLed run left its lock: " << held.status().message();
+    const auto before = fs::exists(run / "checkpoint.pt")
+                            ? fs::last_write_time(run / "checkpoint.pt")
+                            : fs::file_time_type::min();
+    EXPECT_NE(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() + "' --resume",
+                            dir / "refused.log", &log),
+              0);
+    EXPECT_NE(log.find(run.string() + " is in use (pid " + std::to_string(getpid())),
+              std::string::npos)
+        << log;
+    if (fs::exists(run / "checkpoint.pt")) {
+      EXPECT_EQ(fs::last_write_time(run / "checkpoint.pt"), before);
+    }
   }
   ASSERT_EQ(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() +
                               "' --resume --method 'tiny resumed'",
