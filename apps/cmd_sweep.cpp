@@ -1,6 +1,8 @@
 /// @file cmd_sweep.cpp
 /// @brief `crpgs sweep`: run a sweep file's grid of configs x overrides x datasets, locally with
 /// N workers or as a Slurm job array.
+#include <atomic>
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 
@@ -19,6 +21,13 @@ struct SweepArgs {
   bool slurm = false, dry_run = false;
 };
 
+std::atomic<bool> g_stop{false};
+// SIGINT (Ctrl-C) and SIGTERM (e.g. Slurm's time limit): start nothing more, let the running
+// trainings checkpoint, then exit.
+extern "C" void on_stop_signal(int) {
+  g_stop = true;
+}
+
 int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   auto spec = ex::load_sweep(a.file);
   if (!spec.ok()) return report_error(spec.status());
@@ -31,6 +40,9 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.registry = &registry;
   opt.dry_run = a.dry_run;
   opt.sweep_size = static_cast<int>(runs.size());
+  opt.stop = &g_stop;
+  std::signal(SIGINT, on_stop_signal);
+  std::signal(SIGTERM, on_stop_signal);
   // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.
   const char* runner = std::getenv("CRPGS_SWEEP_RUNNER");
   opt.runner = runner && *runner ? runner : ex::self_executable();
@@ -41,6 +53,10 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
                                  "--run-index " + std::to_string(a.run_index) + ": the sweep has " +
                                      std::to_string(runs.size()) + " runs"));
     Status st = ex::run_one(runs[static_cast<size_t>(a.run_index)], opt);
+    if (st.code() == StatusCode::kCancelled) {
+      std::fprintf(stderr, "crpgs: %s\n", st.message().c_str());
+      return 130;
+    }
     return st.ok() ? 0 : report_error(st);
   }
 
@@ -75,13 +91,17 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   auto sum = ex::run_sweep_local(runs, opt);
   if (!sum.ok()) return report_error(sum.status());
   if (a.dry_run) return sum->failed > 0 ? 1 : 0;
-  std::printf("sweep %s: %d finished now, %d already done, %d failed\n", spec->name.c_str(),
-              sum->succeeded, sum->skipped, sum->failed);
+  std::printf("sweep %s: %d finished now, %d already done, %d failed, %d stopped\n",
+              spec->name.c_str(), sum->succeeded, sum->skipped, sum->failed, sum->interrupted);
   if (sum->failed > 0) {
     std::fprintf(stderr, "crpgs: error: %d runs failed (rerun `crpgs sweep` to retry them):\n",
                  sum->failed);
     for (const auto& id : sum->failed_ids) std::fprintf(stderr, "  %s\n", id.c_str());
     return 1;
+  }
+  if (sum->interrupted > 0 || g_stop) {
+    std::printf("stopped; the same command continues the sweep (stopped runs resume)\n");
+    return 130;
   }
   std::printf("results: crpgs report %s\n", runs_dir.c_str());
   return 0;
@@ -96,7 +116,9 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
       "Run a sweep: every base config x override grid x dataset of SWEEP.yaml (see "
       "configs/sweeps/), each run in its own directory with its resolved config, logs and "
       "metrics.json. Finished runs are skipped; crashed or killed ones are rerun (resuming from "
-      "their checkpoint). Summarise with `crpgs report RUNS_DIR`.");
+      "their checkpoint); a run another process is training is skipped. Ctrl-C (or SIGTERM) "
+      "starts nothing more and lets the running trainings checkpoint; the same command then "
+      "continues. Summarise with `crpgs report RUNS_DIR`.");
   cmd->add_option("SWEEP", a.file, "sweep file (YAML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("-o,--output", a.out, "runs directory (default: the sweep file's 'output')");
   cmd->add_option("-j,--jobs", a.jobs, "runs at a time (default: the sweep file's 'workers')")

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <set>
 #include <sstream>
@@ -289,6 +290,44 @@ TEST(Sweep, SkipsARunAnotherProcessHolds) {
   EXPECT_EQ(again->succeeded, 1);
   EXPECT_EQ(again->skipped, 5);
   EXPECT_EQ(run_state(s.runs[2].dir), RunState::kComplete);
+}
+
+TEST(Sweep, StopStartsNothingMoreAndStopsTheRunningRun) {
+  LocalSweep s("stop");
+  const SweepRun& hung = s.runs[1];
+  setenv("FAKE_HANG", hung.id.c_str(), 1);
+  s.opt.workers = 1;  // run 0 finishes, run 1 hangs until stopped, 2..5 must not start
+  std::atomic<bool> stop{false};
+  s.opt.stop = &stop;
+  std::thread ctrl_c([&] {  // what the CLI's SIGINT/SIGTERM handler does
+    for (int i = 0; i < 600 && !fs::exists(hung.dir + "/hang_started"); ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    stop = true;
+  });
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ctrl_c.join();
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->succeeded, 1);
+  EXPECT_EQ(sum->interrupted, 1);
+  EXPECT_EQ(sum->failed, 0);
+  EXPECT_EQ(s.calls().size(), 2u);
+  EXPECT_EQ(run_state(hung.dir), RunState::kInterrupted);
+  for (size_t i = 2; i < s.runs.size(); ++i)
+    EXPECT_EQ(run_state(s.runs[i].dir), RunState::kPending) << s.runs[i].id;
+  EXPECT_TRUE(std::any_of(s.lines.begin(), s.lines.end(), [&](const std::string& l) {
+    return l.find(hung.id + ": stopped (killed by signal 15)") != std::string::npos;
+  }));
+
+  // The same sweep again resumes the stopped run and runs the rest.
+  unsetenv("FAKE_HANG");
+  stop = false;
+  auto again = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->succeeded, 5);
+  EXPECT_EQ(again->interrupted, 0);
+  const auto calls = s.calls();
+  ASSERT_EQ(calls.size(), 7u);
+  EXPECT_EQ(calls[2], hung.dir + " --resume");
 }
 
 TEST(Sweep, DryRunStartsNothing) {

@@ -9,12 +9,15 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <map>
 #include <set>
+#include <thread>
 
 #include <yaml-cpp/yaml.h>
 
@@ -365,8 +368,14 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
   std::vector<Active> active;
   size_t next = 0;
   const size_t workers = static_cast<size_t>(std::max(1, opt.workers));
-  while (next < todo.size() || !active.empty()) {
-    while (next < todo.size() && active.size() < workers) {
+  bool stopping = false;
+  while ((next < todo.size() && !stopping) || !active.empty()) {
+    if (!stopping && opt.stop && opt.stop->load()) {
+      stopping = true;
+      log("stopping: no further runs start; the running ones checkpoint and stop");
+      for (const Active& a : active) kill(a.pid, SIGTERM);
+    }
+    while (!stopping && next < todo.size() && active.size() < workers) {
       const SweepRun& r = *todo[next++];
       auto pid = launch(r, opt);
       if (!pid.ok()) {
@@ -382,7 +391,12 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     }
     if (active.empty()) continue;
     int status = 0;
-    const pid_t done = waitpid(-1, &status, 0);
+    // With a stop flag, poll: a blocking wait would not notice it until a run ends.
+    const pid_t done = waitpid(-1, &status, opt.stop ? WNOHANG : 0);
+    if (done == 0) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      continue;
+    }
     if (done < 0) {
       if (errno == EINTR) continue;
       return Status(StatusCode::kInternal, std::string("waitpid: ") + std::strerror(errno));
@@ -403,6 +417,9 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       std::snprintf(buf, sizeof buf, ": done (%.3f dB, %llu bytes)", metrics->psnr_mean,
                     static_cast<unsigned long long>(metrics->size_bytes));
       log(tag + buf);
+    } else if (stopping || (opt.stop && opt.stop->load())) {
+      ++sum.interrupted;  // .running stays: the next `crpgs sweep` resumes it
+      log(tag + ": stopped (" + exit_text(status) + "); the next `crpgs sweep` resumes it");
     } else {
       // The .running marker stays, so the next `crpgs sweep` reruns (resumes) it.
       ++sum.failed;
@@ -417,6 +434,8 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
 
 Status run_one(const SweepRun& run, const ExecOptions& opt) {
   CRPGS_ASSIGN_OR_RETURN(SweepSummary s, run_sweep_local({run}, opt));
+  if (s.interrupted > 0)
+    return Status(StatusCode::kCancelled, "run " + run.id + " stopped; the next run resumes it");
   if (s.failed > 0)
     return Status(StatusCode::kInternal,
                   "run " + run.id + " failed; see " + run.dir + "/stderr.log");

@@ -21,6 +21,7 @@
 ///   workers: 2                      # local parallel runs
 #pragma once
 
+#include <atomic>
 #include <cmath>
 #include <functional>
 #include <string>
@@ -103,10 +104,14 @@ struct ExecOptions {
   bool dry_run = false;  ///< print what would run, run nothing
   int sweep_size = 0;    ///< runs in the whole sweep, for the "[i/n]" tags; 0 = runs given
   std::function<void(const std::string&)> log;  ///< progress lines (default: stdout)
+  /// Set (e.g. by a SIGINT/SIGTERM handler) to stop: no run starts after it, the running ones get
+  /// SIGTERM (`crpgs train` checkpoints and exits) and are waited for. Null: never stops.
+  const std::atomic<bool>* stop = nullptr;
 };
 
 struct SweepSummary {
   int total = 0, skipped = 0, succeeded = 0, failed = 0;
+  int interrupted = 0;  ///< runs stopped by `stop`; the next sweep resumes them
   std::vector<std::string> failed_ids;
 };
 
