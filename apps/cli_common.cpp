@@ -21,15 +21,7 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
   StatusOr<Config> cfg = path.empty() ? Config::from_string(fallback_yaml, "<built-in config>")
                                       : Config::load_file(path);
   if (!cfg.ok()) return cfg.status();
-  // A relative dataset path in a config file is relative to that file, so configs work from any
-  // directory and the resolved copy in a run directory stays valid. (--set paths: relative to cwd.)
-  const YAML::Node ds = cfg->root()["dataset"];
-  if (!path.empty() && ds.IsDefined() && ds.IsMap() && ds["path"] && ds["path"].IsScalar() &&
-      !ds["path"].Scalar().empty() && std::filesystem::path(ds["path"].Scalar()).is_relative()) {
-    const auto base = std::filesystem::absolute(path).parent_path();
-    const auto abs = (base / ds["path"].Scalar()).lexically_normal().string();
-    CRPGS_RETURN_IF_ERROR(cfg->apply_override("dataset.path=" + abs));
-  }
+  // load_file made a file's relative dataset path absolute; --set paths stay relative to cwd.
   for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(cfg->apply_override(s));
   return cfg->resolve(registry);
 }

@@ -1,6 +1,10 @@
 /// @file test_config.cpp
-/// @brief Schema parsing, config validation messages (file:line:col + YAML path), --set.
+/// @brief Schema parsing, config validation messages (file:line:col + YAML path), --set,
+/// inheritance (`base:`).
 #include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
 
 #include "crpgs/config.h"
 #include "crpgs/plugin_abi.h"
@@ -161,6 +165,101 @@ TEST(Config, SetOverridesAnyKeyAndReportsItsOrigin) {
   EXPECT_FALSE(bad->apply_override("a..b=1").ok());
   ASSERT_TRUE(bad->apply_override("dataset.path=x").ok());
   EXPECT_FALSE(bad->apply_override("dataset.path.deeper=1").ok());  // path is a scalar
+}
+
+// A directory of config files for one test: name -> text.
+std::string write_configs(const std::string& test,
+                          const std::vector<std::pair<std::string, std::string>>& files) {
+  const std::string dir = testing::TempDir() + "crpgs_config_" + test + "/";
+  std::filesystem::remove_all(dir);
+  for (const auto& [name, text] : files) {
+    std::filesystem::create_directories(std::filesystem::path(dir + name).parent_path());
+    std::ofstream(dir + name) << text;
+  }
+  return dir;
+}
+
+TEST(ConfigBase, InheritsMergesOverridesAndRemoves) {
+  const std::string dir = write_configs(
+      "inherit", {{"full.yaml",
+                   "dataset: {path: data/fern, format: colmap}\n"
+                   "train: {iterations: 900, seed: 3}\n"
+                   "features: {type: sfa, ratio: 0.4, mode: plane}\n"
+                   "entropy: {type: sfa}\n"},
+                  {"more.yaml", "train: {seed: 5}\n"},
+                  {"identity.yaml", "base: full.yaml\nfeatures: {type: identity}\nentropy: null\n"},
+                  {"ablations/x.yaml",
+                   "base: [../full.yaml, ../more.yaml]\n"
+                   "features: {ratio: 0.2}\n"
+                   "entropy: null\n"}});
+  auto cfg = Config::load_file(dir + "ablations/x.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  const YAML::Node& root = cfg->root();
+  EXPECT_FALSE(root["base"].IsDefined());
+  EXPECT_EQ(root["train"]["iterations"].as<int>(), 900);          // from full.yaml
+  EXPECT_EQ(root["train"]["seed"].as<int>(), 5);                  // the later base wins
+  EXPECT_DOUBLE_EQ(root["features"]["ratio"].as<double>(), 0.2);  // this file wins
+  EXPECT_EQ(root["features"]["type"].as<std::string>(), "sfa");   // merged key by key
+  EXPECT_EQ(root["features"]["mode"].as<std::string>(), "plane");
+  EXPECT_TRUE(root["entropy"].IsNull());  // removed
+  // The dataset path is relative to the file that names it, not to the one that inherits it.
+  EXPECT_EQ(root["dataset"]["path"].as<std::string>(),
+            (std::filesystem::absolute(dir) / "data/fern").lexically_normal().string());
+  auto resolved = cfg->resolve(test_registry());
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  EXPECT_FALSE(resolved->section("entropy").IsDefined());
+  EXPECT_DOUBLE_EQ(resolved->section("features")["ratio"].as<double>(), 0.2);
+
+  // Another component type replaces the base's block: sfa's ratio does not reach identity.
+  auto other = Config::load_file(dir + "identity.yaml");
+  ASSERT_TRUE(other.ok()) << other.status().to_string();
+  EXPECT_FALSE(other->root()["features"]["ratio"].IsDefined());
+  auto other_resolved = other->resolve(test_registry());
+  ASSERT_TRUE(other_resolved.ok()) << other_resolved.status().to_string();
+  EXPECT_EQ(other_resolved->section("features")["type"].as<std::string>(), "identity");
+}
+
+TEST(ConfigBase, MessagesNameTheFileAndLineOfTheKey) {
+  const std::string dir =
+      write_configs("messages", {{"base.yaml", "# comment\nfeatures:\n  type: sfa\n  ratoi: 1\n"},
+                                 {"child.yaml", "base: base.yaml\nfeatures: {ratio: 9}\n"}});
+  auto cfg = Config::load_file(dir + "child.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  Status st = cfg->resolve(test_registry()).status();
+  ASSERT_FALSE(st.ok());
+  // The first error in schema order is the child's ratio; the base's typo comes from base.yaml.
+  EXPECT_NE(st.message().find(dir + "child.yaml:2:19: features.ratio: '9' is out of range"),
+            std::string::npos)
+      << st.message();
+  ASSERT_TRUE(cfg->apply_override("features.ratio=0.5").ok());
+  st = cfg->resolve(test_registry()).status();
+  EXPECT_NE(st.message().find(dir + "base.yaml:4:3: features.ratoi: unknown key"),
+            std::string::npos)
+      << st.message();
+}
+
+TEST(ConfigBase, RefusesCyclesMissingFilesAndBadValues) {
+  const std::string dir =
+      write_configs("refuse", {{"a.yaml", "base: b.yaml\n"},
+                               {"b.yaml", "train: {seed: 1}\nbase: a.yaml\n"},
+                               {"self.yaml", "base: ./self.yaml\n"},
+                               {"missing.yaml", "train: {seed: 1}\nbase: nowhere.yaml\n"},
+                               {"number.yaml", "base: {a: 1}\n"}});
+  Status st = Config::load_file(dir + "a.yaml").status();
+  EXPECT_NE(st.message().find("b.yaml:2:7: base: 'a.yaml' inherits itself"), std::string::npos)
+      << st.message();
+  st = Config::load_file(dir + "self.yaml").status();
+  EXPECT_NE(st.message().find("self.yaml:1:7: base: './self.yaml' inherits itself"),
+            std::string::npos)
+      << st.message();
+  st = Config::load_file(dir + "missing.yaml").status();
+  EXPECT_NE(st.message().find("missing.yaml:2:7: base: cannot open config file"), std::string::npos)
+      << st.message();
+  EXPECT_NE(st.message().find("nowhere.yaml"), std::string::npos) << st.message();
+  st = Config::load_file(dir + "number.yaml").status();
+  EXPECT_NE(st.message().find("number.yaml:1:7: base: expected a config file or a list"),
+            std::string::npos)
+      << st.message();
 }
 
 }  // namespace

@@ -36,6 +36,13 @@ const std::vector<CoreSection>& core_sections();
 
 class Config {
  public:
+  /// Reads a config file. A top-level `base: FILE` (or a list of files, later ones winning)
+  /// inherits those configs: maps merge key by key, anything else in this file replaces the
+  /// base's value, a component block naming another `type:` replaces the base's block, and
+  /// `key: null` removes a section. A relative `dataset.path` is made
+  /// absolute against the directory of the file that names it, so configs work from any
+  /// directory and the resolved copy saved in a run directory stays valid. Messages about an
+  /// inherited key name the base file and its line.
   static StatusOr<Config> load_file(const std::string& path);
   static StatusOr<Config> from_string(const std::string& yaml_text, const std::string& name);
 

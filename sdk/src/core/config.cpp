@@ -1,8 +1,11 @@
 /// @file config.cpp
 #include "crpgs/config.h"
 
+#include <algorithm>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <utility>
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/registry.h"
@@ -48,6 +51,91 @@ YAML::Node without_marks(const YAML::Node& n) {
   return YAML::Node();
 }
 
+namespace fs = std::filesystem;
+
+constexpr size_t kMaxBaseDepth = 8;
+
+// A block that names another component `type:` than the base's replaces it whole: the base's
+// parameters belong to the other component.
+bool same_component(const YAML::Node& over, const YAML::Node& base) {
+  const YAML::Node a = over["type"], b = base["type"];
+  return !a.IsDefined() || !b.IsDefined() ||
+         (a.IsScalar() && b.IsScalar() && a.Scalar() == b.Scalar());
+}
+
+// Adds every key of `base` that `over` lacks to `over`, recursing where both hold maps. Nodes
+// are shared, not copied, so they keep their positions and SourceRef can name their file.
+void merge_base_into(YAML::Node over, const YAML::Node& base) {
+  for (const auto& kv : base) {
+    const YAML::Node mine = std::as_const(over)[kv.first.as<std::string>()];
+    if (!mine.IsDefined())
+      over.force_insert(kv.first, kv.second);
+    else if (mine.IsMap() && kv.second.IsMap() && same_component(mine, kv.second))
+      merge_base_into(mine, kv.second);
+  }
+}
+
+struct LoadedTree {
+  YAML::Node root;
+  std::vector<std::pair<std::string, YAML::Node>> bases;  // innermost first
+};
+
+// `chain`: the files being loaded, outermost first, to refuse a config that inherits itself.
+StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>& chain) {
+  std::ifstream in(path);
+  if (!in) return Status(StatusCode::kIoError, "cannot open config file " + path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  LoadedTree t;
+  CRPGS_ASSIGN_OR_RETURN(t.root, parse_yaml(ss.str(), path));
+  const fs::path dir = fs::absolute(path).parent_path();
+  SourceRef src{path, {}};
+
+  // Const lookups: a non-const operator[] would add the missing key and hide the base's.
+  const YAML::Node dataset = std::as_const(t.root)["dataset"];
+  YAML::Node path_node = dataset.IsDefined() && dataset.IsMap() ? dataset["path"] : YAML::Node();
+  if (path_node.IsDefined() && path_node.IsScalar() && !path_node.Scalar().empty() &&
+      fs::path(path_node.Scalar()).is_relative())
+    path_node = (dir / path_node.Scalar()).lexically_normal().string();  // keeps its position
+
+  const YAML::Node base = std::as_const(t.root)["base"];
+  if (!base.IsDefined()) return t;
+  std::vector<YAML::Node> names;
+  if (base.IsScalar()) names.push_back(base);
+  if (base.IsSequence())
+    for (const auto& e : base) names.push_back(e);
+  if (names.empty() ||
+      std::any_of(names.begin(), names.end(), [](const YAML::Node& n) { return !n.IsScalar(); }))
+    return Status(StatusCode::kInvalidConfig,
+                  src.describe(base) + ": base: expected a config file or a list of them");
+  chain.push_back(fs::weakly_canonical(path).string());
+  // Later bases win: merge the last one first, since merging only fills in missing keys.
+  for (auto n = names.rbegin(); n != names.rend(); ++n) {
+    const fs::path base_path =
+        fs::path(n->Scalar()).is_absolute()
+            ? fs::path(n->Scalar())
+            : (fs::path(path).parent_path() / n->Scalar()).lexically_normal();
+    const std::string canonical = fs::weakly_canonical(base_path).string();
+    if (std::find(chain.begin(), chain.end(), canonical) != chain.end())
+      return Status(StatusCode::kInvalidConfig,
+                    src.describe(*n) + ": base: '" + n->Scalar() + "' inherits itself");
+    if (chain.size() >= kMaxBaseDepth)
+      return Status(StatusCode::kInvalidConfig, src.describe(*n) + ": base: more than " +
+                                                    std::to_string(kMaxBaseDepth) +
+                                                    " levels of inheritance");
+    auto loaded = load_tree(base_path.string(), chain);
+    if (!loaded.ok())
+      return Status(loaded.status().code(),
+                    src.describe(*n) + ": base: " + loaded.status().message());
+    merge_base_into(t.root, loaded->root);
+    t.bases.insert(t.bases.end(), loaded->bases.begin(), loaded->bases.end());
+    t.bases.emplace_back(base_path.string(), loaded->root);
+  }
+  chain.pop_back();
+  t.root.remove("base");
+  return t;
+}
+
 }  // namespace
 
 const std::vector<ComponentSection>& component_sections() {
@@ -68,11 +156,13 @@ StatusOr<Config> Config::from_string(const std::string& yaml_text, const std::st
 }
 
 StatusOr<Config> Config::load_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return Status(StatusCode::kIoError, "cannot open config file " + path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return from_string(ss.str(), path);
+  std::vector<std::string> chain;
+  CRPGS_ASSIGN_OR_RETURN(LoadedTree t, load_tree(path, chain));
+  Config c;
+  c.root_ = t.root;
+  c.src_.file = path;
+  c.src_.bases = std::move(t.bases);
+  return c;
 }
 
 Status Config::apply_override(const std::string& assignment) {

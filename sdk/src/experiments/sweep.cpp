@@ -234,10 +234,9 @@ Status absolute_dataset_path(Config& cfg, const fs::path& base) {
 }
 
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
+  // As `crpgs train`: load_file makes a config file's dataset path absolute against that file;
+  // one set by the sweep file (like --set) is relative to the working directory.
   CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
-  // As `crpgs train`: a dataset path in a config file is relative to that file; one set by the
-  // sweep file (like --set) is relative to the working directory.
-  CRPGS_RETURN_IF_ERROR(absolute_dataset_path(cfg, fs::absolute(run.config_path).parent_path()));
   for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
   std::error_code ec;
   CRPGS_RETURN_IF_ERROR(absolute_dataset_path(cfg, fs::current_path(ec)));
