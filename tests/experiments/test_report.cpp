@@ -62,7 +62,7 @@ std::string make_fixture(const std::string& name) {
 
 TEST(Report, CollectsFinishedRunsInSweepOrder) {
   const std::string runs = make_fixture("collect");
-  auto c = collect_runs(runs);
+  auto c = collect_runs({runs});
   ASSERT_TRUE(c.ok()) << c.status().message();
   ASSERT_EQ(c->runs.size(), 12u);
   EXPECT_EQ(c->runs[0].method, "hac");
@@ -70,14 +70,14 @@ TEST(Report, CollectsFinishedRunsInSweepOrder) {
   EXPECT_DOUBLE_EQ(c->runs[1].rate, 2e-3);
   ASSERT_EQ(c->unfinished.size(), 1u);
   EXPECT_EQ(c->unfinished[0], "fern/crpgs/unfinished");
-  EXPECT_FALSE(collect_runs(runs + "/nope").ok());
+  EXPECT_FALSE(collect_runs({runs + "/nope"}).ok());
 }
 
 TEST(Report, TablesHaveRdPointsAndBdRows) {
   const std::string runs = make_fixture("tables");
   ReportOptions opt;
   opt.plots = false;
-  auto out = write_report(runs, opt);
+  auto out = write_report({runs}, opt);
   ASSERT_TRUE(out.ok()) << out.status().message();
   EXPECT_EQ(out->markdown, runs + "/report/report.md");
   const std::string md = read_text(out->markdown);
@@ -113,7 +113,7 @@ TEST(Report, RendersAllPlotsAndEmbedsThemInTheHtml) {
   const std::string runs = make_fixture("plots");
   ReportOptions opt;
   opt.out_dir = fresh_dir("plots_out");
-  auto out = write_report(runs, opt);
+  auto out = write_report({runs}, opt);
   ASSERT_TRUE(out.ok()) << out.status().message();
   std::set<std::string> names;
   for (const auto& p : out->pngs) names.insert(fs::path(p).filename().string());
@@ -139,8 +139,55 @@ TEST(Report, RendersAllPlotsAndEmbedsThemInTheHtml) {
   // No temporary files left next to the outputs.
   for (const auto& e : fs::directory_iterator(opt.out_dir))
     EXPECT_TRUE(e.path().extension() == ".png" || e.path().extension() == ".md" ||
-                e.path().extension() == ".html")
+                e.path().extension() == ".html" || e.path().filename() == "runs")
         << e.path();
+}
+
+// The report's records rebuild the same report; a later directory's run replaces an earlier
+// one with the same id, an unfinished one included; a report's own output is never an input.
+TEST(Report, RecordsRebuildTheReportAndNewerRunsReplaceOlderOnes) {
+  const std::string runs = make_fixture("records");
+  ReportOptions opt;
+  opt.plots = false;
+  auto first = write_report({runs}, opt);  // into runs/report, inside the runs directory
+  ASSERT_TRUE(first.ok()) << first.status().message();
+  EXPECT_EQ(first->records, runs + "/report/runs");
+  EXPECT_TRUE(fs::exists(runs + "/report/runs/fern/crpgs/lambda-2/metrics.json"));
+  EXPECT_TRUE(fs::exists(runs + "/report/runs/fern/crpgs/lambda-2/run.json"));
+  EXPECT_FALSE(fs::exists(runs + "/report/runs/fern/crpgs/unfinished"));
+  auto again = collect_runs({runs}, runs + "/report");
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->runs.size(), 12u);  // not 24: the records under runs/report are skipped
+
+  ReportOptions rebuilt_opt = opt;
+  rebuilt_opt.out_dir = fresh_dir("records_rebuilt");
+  auto rebuilt = write_report({first->records}, rebuilt_opt);
+  ASSERT_TRUE(rebuilt.ok()) << rebuilt.status().message();
+  auto tables = [](const std::string& md) { return md.substr(md.find("## fern")); };
+  EXPECT_EQ(tables(read_text(rebuilt->markdown)), tables(read_text(first->markdown)));
+
+  // A newer copy of one run (smaller file) and the unfinished run, now finished.
+  const std::string newer = fresh_dir("records_newer");
+  auto m = read_run_metrics(runs + "/fern/crpgs/lambda-2/metrics.json");
+  ASSERT_TRUE(m.ok());
+  m->size_bytes /= 2;
+  fs::create_directories(newer + "/a");
+  ASSERT_TRUE(write_run_metrics(newer + "/a/metrics.json", *m).ok());
+  fs::copy_file(runs + "/fern/crpgs/lambda-2/run.json", newer + "/a/run.json");
+  fs::create_directories(newer + "/b");
+  ASSERT_TRUE(write_run_metrics(newer + "/b/metrics.json", *m).ok());
+  write_text(newer + "/b/run.json", "{\"id\": \"fern/crpgs/unfinished\", \"method\": \"crpgs\"}\n");
+  auto merged = collect_runs({first->records, runs + "/fern/crpgs/unfinished", newer});
+  ASSERT_TRUE(merged.ok()) << merged.status().message();
+  EXPECT_EQ(merged->runs.size(), 13u);
+  EXPECT_TRUE(merged->unfinished.empty());
+  const auto it = std::find_if(merged->runs.begin(), merged->runs.end(),
+                               [](const ReportRun& r) { return r.id == "fern/crpgs/lambda-2"; });
+  ASSERT_NE(it, merged->runs.end());
+  EXPECT_EQ(it->metrics.size_bytes, m->size_bytes);
+  EXPECT_EQ(std::count_if(merged->runs.begin(), merged->runs.end(),
+                          [](const ReportRun& r) { return r.id == "fern/crpgs/lambda-2"; }),
+            1);
 }
 
 TEST(Report, Base64) {

@@ -280,6 +280,45 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
   return OkStatus();
 }
 
+// A run id as a relative path inside a records directory: no root, no "..", not empty.
+bool safe_relative_id(const std::string& id) {
+  const fs::path p(id);
+  if (id.empty() || p.is_absolute() || p.has_root_name()) return false;
+  for (const auto& part : p)
+    if (part == ".." || part == ".") return false;
+  return true;
+}
+
+// Copies each run's records into OUT/runs/<id>/ through a scratch directory swapped in at the
+// end, so the directory holds exactly the runs of this report even when it was also an input.
+Status write_records(const std::vector<ReportRun>& runs, const std::string& out_dir) {
+  const fs::path final_dir = fs::path(out_dir) / "runs", scratch = final_dir.string() + ".new",
+                 previous = final_dir.string() + ".old";
+  std::error_code ec;
+  fs::remove_all(scratch, ec);
+  fs::remove_all(previous, ec);
+  for (size_t i = 0; i < runs.size(); ++i) {
+    const fs::path dir =
+        scratch / (safe_relative_id(runs[i].id) ? runs[i].id : "run-" + std::to_string(i));
+    fs::create_directories(dir, ec);
+    if (ec)
+      return Status(StatusCode::kIoError, "cannot create " + dir.string() + ": " + ec.message());
+    for (const char* name : {"metrics.json", "run.json", "config.yaml"}) {
+      const std::string from = runs[i].dir + "/" + name;
+      if (!fs::exists(from, ec)) continue;
+      CRPGS_ASSIGN_OR_RETURN(auto bytes, read_file_bytes(from));
+      CRPGS_RETURN_IF_ERROR(write_file_atomic((dir / name).string(), bytes));
+    }
+  }
+  if (fs::exists(final_dir, ec)) fs::rename(final_dir, previous, ec);
+  if (!ec) fs::rename(scratch, final_dir, ec);
+  if (ec)
+    return Status(StatusCode::kIoError,
+                  "cannot move the run records into " + final_dir.string() + ": " + ec.message());
+  fs::remove_all(previous, ec);
+  return OkStatus();
+}
+
 }  // namespace
 
 std::string base64_encode(const std::string& in) {
@@ -302,48 +341,66 @@ std::string base64_encode(const std::string& in) {
   return out;
 }
 
-StatusOr<CollectedRuns> collect_runs(const std::string& runs_dir) {
-  std::error_code ec;
-  if (!fs::is_directory(runs_dir, ec))
-    return Status(StatusCode::kNotFound, runs_dir + ": not a directory");
+StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
+                                     const std::string& exclude) {
   CollectedRuns out;
-  std::vector<fs::path> dirs;
-  for (auto it = fs::recursive_directory_iterator(runs_dir, ec);
-       !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
-    const auto name = it->path().filename();
-    if (it->is_regular_file() && (name == "metrics.json" || name == "run.json"))
-      dirs.push_back(it->path().parent_path());
-  }
-  std::sort(dirs.begin(), dirs.end());
-  dirs.erase(std::unique(dirs.begin(), dirs.end()), dirs.end());
-  for (const auto& d : dirs) {
-    const std::string dir = d.string();
-    ReportRun r;
-    r.dir = dir;
-    r.id = fs::relative(d, runs_dir, ec).string();
-    auto m = read_run_metrics(dir + "/metrics.json");
-    if (!m.ok() || fs::exists(d / ".running", ec)) {
-      out.unfinished.push_back(r.id);
-      continue;
-    }
-    r.metrics = std::move(m).value();
-    r.method = r.metrics.method;
-    r.dataset = r.metrics.dataset;
-    r.rate = r.metrics.lambda;
-    if (fs::exists(d / "run.json", ec)) {
-      auto info = io::read_json_file(dir + "/run.json");
-      if (info.ok()) {
-        const auto& j = info.value();
-        if (auto* v = j.find("id"); v && v->is_string()) r.id = v->string;
-        if (auto* v = j.find("method"); v && v->is_string()) r.method = v->string;
-        if (auto* v = j.find("dataset"); v && v->is_string()) r.dataset = v->string;
-        if (auto* v = j.find("rate"); v && v->is_number()) r.rate = v->number;
-        if (auto* v = j.find("index"); v && v->is_number()) r.order = int(v->number);
+  std::error_code ec;
+  const fs::path excluded = exclude.empty() ? fs::path() : fs::weakly_canonical(exclude, ec);
+  for (const auto& runs_dir : runs_dirs) {
+    if (!fs::is_directory(runs_dir, ec))
+      return Status(StatusCode::kNotFound, runs_dir + ": not a directory");
+    std::vector<fs::path> dirs;
+    for (auto it = fs::recursive_directory_iterator(runs_dir, ec);
+         !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+      if (it->is_directory() && !excluded.empty() &&
+          fs::weakly_canonical(it->path(), ec) == excluded) {
+        it.disable_recursion_pending();
+        continue;
       }
+      const auto name = it->path().filename();
+      if (it->is_regular_file() && (name == "metrics.json" || name == "run.json"))
+        dirs.push_back(it->path().parent_path());
     }
-    if (r.method.empty()) r.method = "unnamed";
-    if (r.dataset.empty()) r.dataset = "unnamed";
-    out.runs.push_back(std::move(r));
+    std::sort(dirs.begin(), dirs.end());
+    dirs.erase(std::unique(dirs.begin(), dirs.end()), dirs.end());
+    for (const auto& d : dirs) {
+      const std::string dir = d.string();
+      ReportRun r;
+      r.dir = dir;
+      r.id = fs::relative(d, runs_dir, ec).string();
+      const bool running = fs::exists(d / ".running", ec);
+      auto m = read_run_metrics(dir + "/metrics.json");
+      if (m.ok() && !running) {
+        r.metrics = std::move(m).value();
+        r.method = r.metrics.method;
+        r.dataset = r.metrics.dataset;
+        r.rate = r.metrics.lambda;
+      }
+      if (fs::exists(d / "run.json", ec)) {
+        auto info = io::read_json_file(dir + "/run.json");
+        if (info.ok()) {
+          const auto& j = info.value();
+          if (auto* v = j.find("id"); v && v->is_string()) r.id = v->string;
+          if (auto* v = j.find("method"); v && v->is_string()) r.method = v->string;
+          if (auto* v = j.find("dataset"); v && v->is_string()) r.dataset = v->string;
+          if (auto* v = j.find("rate"); v && v->is_number()) r.rate = v->number;
+          if (auto* v = j.find("index"); v && v->is_number()) r.order = int(v->number);
+        }
+      }
+      // The same run seen before (an older record, or an unfinished copy): this one replaces it.
+      out.runs.erase(std::remove_if(out.runs.begin(), out.runs.end(),
+                                    [&](const ReportRun& x) { return x.id == r.id; }),
+                     out.runs.end());
+      out.unfinished.erase(std::remove(out.unfinished.begin(), out.unfinished.end(), r.id),
+                           out.unfinished.end());
+      if (!m.ok() || running) {
+        out.unfinished.push_back(r.id);
+        continue;
+      }
+      if (r.method.empty()) r.method = "unnamed";
+      if (r.dataset.empty()) r.dataset = "unnamed";
+      out.runs.push_back(std::move(r));
+    }
   }
   std::stable_sort(out.runs.begin(), out.runs.end(),
                    [](const ReportRun& a, const ReportRun& b) { return a.order < b.order; });
@@ -355,10 +412,12 @@ bool gnuplot_available(const std::string& gnuplot) {
   return run_capture(shell_quote(gnuplot) + " --version", out) == 0;
 }
 
-StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOptions& opt_in) {
+StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
+                                    const ReportOptions& opt_in) {
+  if (runs_dirs.empty()) return Status(StatusCode::kInvalidArgument, "no runs directory given");
   ReportOptions opt = opt_in;
-  if (opt.out_dir.empty()) opt.out_dir = (fs::path(runs_dir) / "report").string();
-  CRPGS_ASSIGN_OR_RETURN(CollectedRuns collected, collect_runs(runs_dir));
+  if (opt.out_dir.empty()) opt.out_dir = (fs::path(runs_dirs[0]) / "report").string();
+  CRPGS_ASSIGN_OR_RETURN(CollectedRuns collected, collect_runs(runs_dirs, opt.out_dir));
   std::error_code ec;
   fs::create_directories(opt.out_dir, ec);
   if (ec)
@@ -395,8 +454,11 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
   }
   Plotter plotter(opt.gnuplot, opt.out_dir, scratch);
 
-  std::string summary = "Runs directory: " + runs_dir + "; " +
-                        std::to_string(collected.runs.size()) + " finished runs";
+  std::string sources;
+  for (const auto& d : runs_dirs) sources += (sources.empty() ? "" : ", ") + d;
+  std::string summary =
+      std::string(runs_dirs.size() > 1 ? "Runs directories: " : "Runs directory: ") + sources +
+      "; " + std::to_string(collected.runs.size()) + " finished runs";
   if (!collected.unfinished.empty())
     summary += ", " + std::to_string(collected.unfinished.size()) + " unfinished (" + [&] {
       std::string s;
@@ -555,6 +617,8 @@ StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOpt
   result.html = opt.out_dir + "/report.html";
   CRPGS_RETURN_IF_ERROR(write_file_atomic(result.markdown, md));
   CRPGS_RETURN_IF_ERROR(write_file_atomic(result.html, html));
+  CRPGS_RETURN_IF_ERROR(write_records(collected.runs, opt.out_dir));
+  result.records = opt.out_dir + "/runs";
   for (const auto& n : plotter.pngs) result.pngs.push_back(opt.out_dir + "/" + n);
   return result;
 }

@@ -28,11 +28,14 @@ struct CollectedRuns {
   std::vector<std::string> unfinished;  ///< run dirs (with run.json) without usable metrics
 };
 
-/// Walks `runs_dir` recursively for metrics.json (and run.json) files.
-StatusOr<CollectedRuns> collect_runs(const std::string& runs_dir);
+/// Walks each of `runs_dirs` recursively for metrics.json (and run.json) files, skipping the
+/// directory `exclude` (a report's own output). A run id seen again replaces the earlier run:
+/// a later directory wins, so new runs can be reported together with an older report's records.
+StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
+                                     const std::string& exclude = "");
 
 struct ReportOptions {
-  std::string out_dir;              ///< default: RUNS_DIR/report
+  std::string out_dir;              ///< default: the first runs directory's report/
   std::string gnuplot = "gnuplot";  ///< executable; plots are skipped (with a note) if missing
   bool plots = true;
 };
@@ -40,6 +43,7 @@ struct ReportOptions {
 struct ReportOutput {
   std::string markdown;  ///< path of report.md
   std::string html;      ///< path of report.html
+  std::string records;   ///< the directory of the runs' records
   std::vector<std::string> pngs;
   std::vector<std::string> notes;  ///< e.g. "gnuplot not found: no plots"
 };
@@ -47,8 +51,12 @@ struct ReportOutput {
 /// True if `gnuplot --version` runs.
 bool gnuplot_available(const std::string& gnuplot = "gnuplot");
 
-/// Writes report.md, report.html and the PNGs into opt.out_dir, all atomically.
-StatusOr<ReportOutput> write_report(const std::string& runs_dir, const ReportOptions& opt);
+/// Writes report.md, report.html and the PNGs into opt.out_dir, all atomically, and the records
+/// of every finished run it reports (metrics.json, run.json, config.yaml: a few KB each) into
+/// opt.out_dir/runs/<run id>/, so the report can be rebuilt, or extended with new runs, from the
+/// output directory alone: `crpgs report OUT/runs NEW_RUNS -o OUT`.
+StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
+                                    const ReportOptions& opt);
 
 /// RFC 4648 base64 (for the data URIs of the HTML page).
 std::string base64_encode(const std::string& bytes);
