@@ -145,6 +145,9 @@ TEST(Config, UnknownSectionAndSyntaxError) {
   EXPECT_NE(st.message().find("test.yaml:2:"), std::string::npos) << st.message();
   st = resolve_text("- just\n- a list\n");
   EXPECT_NE(st.message().find("must be a YAML map"), std::string::npos) << st.message();
+  st = resolve_text("train:\n  ? [a, b]\n  : 1\n");
+  EXPECT_NE(st.message().find("test.yaml:2:5: a key must be a plain name"), std::string::npos)
+      << st.message();
 }
 
 TEST(Config, SetOverridesAnyKeyAndReportsItsOrigin) {

@@ -19,6 +19,20 @@ std::string join(const std::vector<std::string>& items) {
   return out;
 }
 
+// Every map key must be a plain scalar: the schemas, merging and messages read keys as text.
+Status check_keys(const YAML::Node& n, const std::string& name) {
+  if (n.IsSequence())
+    for (const auto& e : n) CRPGS_RETURN_IF_ERROR(check_keys(e, name));
+  if (!n.IsMap()) return OkStatus();
+  for (const auto& kv : n) {
+    if (!kv.first.IsScalar())
+      return Status(StatusCode::kInvalidConfig,
+                    SourceRef{name, {}}.describe(kv.first) + ": a key must be a plain name");
+    CRPGS_RETURN_IF_ERROR(check_keys(kv.second, name));
+  }
+  return OkStatus();
+}
+
 StatusOr<YAML::Node> parse_yaml(const std::string& text, const std::string& name) {
   try {
     YAML::Node root = YAML::Load(text);
@@ -26,6 +40,7 @@ StatusOr<YAML::Node> parse_yaml(const std::string& text, const std::string& name
     if (!root.IsMap())
       return Status(StatusCode::kInvalidConfig,
                     name + ":1:1: a config must be a YAML map of sections (dataset, train, ...)");
+    CRPGS_RETURN_IF_ERROR(check_keys(root, name));
     return root;
   } catch (const YAML::ParserException& e) {
     return Status(StatusCode::kInvalidConfig, name + ":" + std::to_string(e.mark.line + 1) + ":" +
