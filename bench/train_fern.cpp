@@ -10,12 +10,16 @@
 // checkpoint (RUN_DIR/config.yaml + checkpoint.pt, e.g. a sweep run past rate_start) and times
 // CRPGS_BENCH_STEPS iterations (default 30) from there; nothing is written to RUN_DIR. Run from
 // the directory the run was trained from (its dataset.path may be relative to it).
+// CRPGS_BENCH_PROFILE=FILE also records libtorch's op-level profile of the timed steps as a
+// Chrome trace (chrome://tracing; operators with their CPU times, forward and backward).
 #include <benchmark/benchmark.h>
+#include <torch/csrc/autograd/profiler_legacy.h>
 #include <torch/torch.h>
 
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
+#include <memory>
 
 #include "crpgs/components.h"
 #include "crpgs/registry.h"
@@ -148,6 +152,9 @@ void BM_TrainRun(benchmark::State& state) {
     return;
   }
   state.counters["from_iteration"] = double(t.value()->iteration());
+  std::unique_ptr<torch::autograd::profiler::RecordProfile> profile;
+  if (const char* trace = std::getenv("CRPGS_BENCH_PROFILE"))
+    profile = std::make_unique<torch::autograd::profiler::RecordProfile>(std::string(trace));
   time_steps(state, *t.value());
 }
 BENCHMARK(BM_TrainRun)
