@@ -86,6 +86,68 @@ TEST(Ssim, MatchesTheMetricsLibraryAndIsOneForEqualImages) {
   EXPECT_NEAR(tensor_ssim(a, b).item<double>(), ref.value(), 1e-4);
 }
 
+// SSIM as libtorch autograd computes it (depthwise convolutions): the training loss's SSIM and
+// its hand-written gradient are checked against it.
+torch::Tensor autograd_ssim(const torch::Tensor& a, const torch::Tensor& b) {
+  const int64_t C = a.size(2);
+  auto x = a.permute({2, 0, 1}).unsqueeze(0).to(torch::kDouble);
+  auto y = b.permute({2, 0, 1}).unsqueeze(0).to(torch::kDouble);
+  auto t = torch::arange(11, torch::kDouble) - 5;
+  auto g = torch::exp(-(t * t) / (2 * 1.5 * 1.5));
+  g = g / g.sum();
+  auto wv = g.view({1, 1, 11, 1}).expand({C, 1, 11, 1}).contiguous();
+  auto wh = g.view({1, 1, 1, 11}).expand({C, 1, 1, 11}).contiguous();
+  auto blur = [&](const torch::Tensor& im) {
+    auto o = torch::conv2d(im, wv, torch::Tensor(), 1, at::IntArrayRef{5, 0}, 1, C);
+    return torch::conv2d(o, wh, torch::Tensor(), 1, at::IntArrayRef{0, 5}, 1, C);
+  };
+  auto mu_x = blur(x), mu_y = blur(y);
+  auto s_x = blur(x * x) - mu_x * mu_x, s_y = blur(y * y) - mu_y * mu_y;
+  auto s_xy = blur(x * y) - mu_x * mu_y;
+  const double C1 = 0.01 * 0.01, C2 = 0.03 * 0.03;
+  return (((2 * mu_x * mu_y + C1) * (2 * s_xy + C2)) /
+          ((mu_x * mu_x + mu_y * mu_y + C1) * (s_x + s_y + C2)))
+      .mean();
+}
+
+// Sizes with and without an interior (the window is 11 wide), one and three channels.
+TEST(Ssim, ValueAndGradientMatchAutogradOfTheConvolutionForm) {
+  torch::manual_seed(3);
+  for (auto shape : std::vector<std::vector<int64_t>>{
+           {37, 52, 3}, {12, 9, 3}, {4, 3, 1}, {11, 23, 1}, {64, 10, 3}}) {
+    auto gt = torch::rand(shape);
+    auto base = (gt + 0.2 * torch::randn(shape)).clamp(0, 1);
+    auto x = base.clone().requires_grad_(true);
+    auto s = tensor_ssim(x, gt);
+    (-0.7 * s).backward();  // a loss weight, as in training
+    auto xr = base.to(torch::kDouble).requires_grad_(true);
+    auto sr = autograd_ssim(xr, gt);
+    (-0.7 * sr).backward();
+    EXPECT_NEAR(s.item<double>(), sr.item<double>(), 2e-6) << c10::IntArrayRef(shape);
+    const double scale = xr.grad().abs().max().item<double>();
+    EXPECT_GT(scale, 0.0);
+    EXPECT_LT((x.grad().to(torch::kDouble) - xr.grad()).abs().max().item<double>(), 2e-4 * scale)
+        << c10::IntArrayRef(shape);
+  }
+}
+
+TEST(Ssim, SameResultWithOneAndTwoThreads) {
+  auto gt = torch::rand({50, 60, 3});
+  auto base = (gt + 0.1 * torch::randn({50, 60, 3})).clamp(0, 1);
+  std::vector<torch::Tensor> values, grads;
+  for (int threads : {1, 2}) {
+    at::set_num_threads(threads);
+    auto x = base.clone().requires_grad_(true);
+    auto s = tensor_ssim(x, gt);
+    s.backward();
+    values.push_back(s.detach());
+    grads.push_back(x.grad());
+  }
+  at::set_num_threads(1);
+  EXPECT_TRUE(torch::equal(values[0], values[1]));
+  EXPECT_TRUE(torch::equal(grads[0], grads[1]));
+}
+
 // A broken gradient (or a loop that does not learn) stays near the initial PSNR.
 TEST(Trainer, ShortTrainingRaisesTestPsnr) {
   Dataset ds = scene(48, 36, 16);

@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "io/gaussian_blur.h"
+
 namespace crpgs {
 namespace {
 
@@ -25,42 +27,15 @@ Status check_pair(const Image& a, const Image& b, const char* what) {
   return OkStatus();
 }
 
-constexpr int kRadius = 5;  // 11 taps
-constexpr double kSigma = 1.5, kC1 = 0.01 * 0.01, kC2 = 0.03 * 0.03;
-
-std::vector<double> gaussian_taps() {
-  std::vector<double> g(2 * kRadius + 1);
-  double s = 0;
-  for (int i = -kRadius; i <= kRadius; ++i)
-    s += g[size_t(i + kRadius)] = std::exp(-(i * i) / (2 * kSigma * kSigma));
-  for (double& v : g) v /= s;
-  return g;
-}
+using ssim_window::kC1;
+using ssim_window::kC2;
 
 // Zero-padded separable filtering of one plane [h, w] in place.
-void blur(std::vector<double>& plane, int w, int h, const std::vector<double>& g,
+void blur(std::vector<double>& plane, int w, int h, const std::array<double, ssim_window::kTaps>& g,
           std::vector<double>& tmp) {
-  tmp.assign(plane.size(), 0.0);
-  for (int y = 0; y < h; ++y) {
-    const double* src = &plane[size_t(y) * w];
-    double* dst = &tmp[size_t(y) * w];
-    for (int x = 0; x < w; ++x) {
-      double s = 0;
-      const int k0 = std::max(-kRadius, -x), k1 = std::min(kRadius, w - 1 - x);
-      for (int k = k0; k <= k1; ++k) s += g[size_t(k + kRadius)] * src[x + k];
-      dst[x] = s;
-    }
-  }
-  std::fill(plane.begin(), plane.end(), 0.0);
-  for (int y = 0; y < h; ++y) {
-    const int k0 = std::max(-kRadius, -y), k1 = std::min(kRadius, h - 1 - y);
-    double* dst = &plane[size_t(y) * w];
-    for (int k = k0; k <= k1; ++k) {
-      const double wk = g[size_t(k + kRadius)];
-      const double* src = &tmp[size_t(y + k) * w];
-      for (int x = 0; x < w; ++x) dst[x] += wk * src[x];
-    }
-  }
+  tmp.resize(plane.size());
+  ssim_window::blur_rows(plane.data(), tmp.data(), 0, h, w, 1, g);
+  ssim_window::blur_columns(tmp.data(), plane.data(), 0, h, h, w, g);
 }
 
 }  // namespace
@@ -89,7 +64,7 @@ StatusOr<double> ssim(const Image& a, const Image& b) {
   CRPGS_RETURN_IF_ERROR(check_pair(a, b, "ssim"));
   const int w = a.width, h = a.height, c = a.channels;
   const size_t n = size_t(w) * h;
-  const std::vector<double> g = gaussian_taps();
+  const auto g = ssim_window::taps<double>();
   std::vector<double> mu1(n), mu2(n), s11(n), s22(n), s12(n), tmp;
   double total = 0;
   for (int ch = 0; ch < c; ++ch) {

@@ -2,4 +2,5 @@
 list(APPEND CRPGS_BASE_SOURCES src/train/sections.cpp)
 list(APPEND CRPGS_TORCH_SOURCES
   src/train/trainer.cpp            # loop, checkpoints, evaluation, setup from a config
+  src/train/ssim.cpp               # the SSIM loss with its own backward
   src/train/scene_generator.cpp)   # the embedded synthetic scene

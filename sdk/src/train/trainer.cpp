@@ -47,12 +47,6 @@ Image tensor_to_image(const torch::Tensor& t) {  // [H, W, C]
   return im;
 }
 
-torch::Tensor gaussian_window_1d() {  // [11], sigma 1.5, normalised
-  auto x = torch::arange(11, torch::kFloat) - 5;
-  auto g = torch::exp(-(x * x) / (2 * 1.5 * 1.5));
-  return g / g.sum();
-}
-
 // Keys in a torch archive cannot contain dots.
 std::string archive_key(const std::string& k) {
   std::string s;
@@ -86,28 +80,6 @@ Schedule Schedule::scaled(double factor) {
 }
 Schedule Schedule::scaled_by(double factor) const {
   return scale_schedule(*this, factor);
-}
-
-torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b) {
-  const int64_t C = a.size(2);
-  auto x = a.permute({2, 0, 1}).unsqueeze(0);  // [1, C, H, W]
-  auto y = b.permute({2, 0, 1}).unsqueeze(0);
-  auto g = gaussian_window_1d().to(a.dtype());
-  auto wv = g.view({1, 1, 11, 1}).expand({C, 1, 11, 1}).contiguous();
-  auto wh = g.view({1, 1, 1, 11}).expand({C, 1, 1, 11}).contiguous();
-  // Separable 11x11 blur with zero padding (same as the 2-D conv with padding 5).
-  auto blur = [&](const torch::Tensor& t) {
-    auto o = torch::conv2d(t, wv, torch::Tensor(), at::IntArrayRef{1, 1}, at::IntArrayRef{5, 0},
-                           at::IntArrayRef{1, 1}, C);
-    return torch::conv2d(o, wh, torch::Tensor(), at::IntArrayRef{1, 1}, at::IntArrayRef{0, 5},
-                         at::IntArrayRef{1, 1}, C);
-  };
-  auto mu_x = blur(x), mu_y = blur(y);
-  auto mu_x2 = mu_x * mu_x, mu_y2 = mu_y * mu_y, mu_xy = mu_x * mu_y;
-  auto s_x = blur(x * x) - mu_x2, s_y = blur(y * y) - mu_y2, s_xy = blur(x * y) - mu_xy;
-  const double C1 = 0.01 * 0.01, C2 = 0.03 * 0.03;
-  auto map = ((2 * mu_xy + C1) * (2 * s_xy + C2)) / ((mu_x2 + mu_y2 + C1) * (s_x + s_y + C2));
-  return map.mean();
 }
 
 double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b) {
