@@ -7,10 +7,68 @@
 #include "crpgs/anchor_model.h"
 #include "crpgs/components.h"
 #include "crpgs/scene_generator.h"
+#include "model/sorted_gather.h"
 #include "raster/cpu_rasterizer.h"
 
 namespace crpgs {
 namespace {
+
+// Gradient of sum(upstream * gather(src)) with respect to src.
+torch::Tensor gather_grad(const torch::Tensor& src0, const torch::Tensor& index,
+                          const torch::Tensor& upstream, bool sorted_op) {
+  auto src = src0.clone().requires_grad_(true);
+  auto out = sorted_op ? gather_sorted_rows(src, index) : src.index_select(0, index);
+  EXPECT_TRUE(torch::equal(out, src0.index_select(0, index)));
+  (out * upstream).sum().backward();
+  return src.grad();
+}
+
+// Repeats, gaps, unselected rows at both ends, an empty index; 1-D to 3-D rows, float and double.
+TEST(GatherSortedRows, SameValuesAndGradientsAsIndexSelectBitForBit) {
+  torch::manual_seed(5);
+  const std::vector<std::vector<int64_t>> indices{
+      {1, 1, 1, 2, 5, 5, 9, 12, 12, 12, 12, 13},
+      {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14},
+      {14, 14},
+      {}};
+  for (auto dtype : {torch::kFloat, torch::kDouble})
+    for (auto shape : std::vector<std::vector<int64_t>>{{15}, {15, 7}, {15, 4, 3}})
+      for (const auto& iv : indices) {
+        auto src = torch::randn(shape, dtype);
+        auto index = torch::tensor(iv, torch::kLong);
+        auto out_shape = shape;
+        out_shape[0] = index.size(0);
+        auto upstream = torch::randn(out_shape, dtype);
+        auto g_ref = gather_grad(src, index, upstream, false);
+        auto g = gather_grad(src, index, upstream, true);
+        EXPECT_TRUE(torch::equal(g, g_ref)) << "index of " << iv.size() << " rows";
+      }
+}
+
+TEST(GatherSortedRows, SameGradientWithOneAndTwoThreads) {
+  auto src = torch::randn({20000, 6});
+  auto index = std::get<0>(torch::randint(20000, {50000}, torch::kLong).sort());
+  auto upstream = torch::randn({50000, 6});
+  at::set_num_threads(1);
+  auto g1 = gather_grad(src, index, upstream, true);
+  at::set_num_threads(2);
+  auto g2 = gather_grad(src, index, upstream, true);
+  at::set_num_threads(1);
+  EXPECT_TRUE(torch::equal(g1, g2));
+}
+
+TEST(GatherSortedRows, RefusesAnIndexItsBackwardCannotUse) {
+  auto src = torch::randn({6, 2}).requires_grad_(true);
+  for (const std::vector<int64_t>& bad :
+       std::vector<std::vector<int64_t>>{{0, 3, 2}, {1, 6}, {-1, 2}}) {
+    try {
+      gather_sorted_rows(src, torch::tensor(bad, torch::kLong));
+      ADD_FAILURE() << "accepted index " << torch::tensor(bad);
+    } catch (const c10::Error& e) {
+      EXPECT_NE(std::string(e.what()).find("gather_sorted_rows"), std::string::npos) << e.what();
+    }
+  }
+}
 
 struct SmallScene {
   Dataset ds;

@@ -4,6 +4,7 @@
 #include "crpgs/anchor_model.h"
 
 #include "crpgs/links.h"
+#include "model/sorted_gather.h"
 
 #include <torch/torch.h>
 
@@ -792,16 +793,17 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   }
   auto idx = out.visible.nonzero().squeeze(1);  // [M]
   const int64_t M = idx.size(0);
-  auto anchor_v = anchor.index_select(0, idx);                                 // [M, 3]
-  auto pos01_v = (rv ? rv->positions01 : positions01()).index_select(0, idx);  // [M, 3]
-  auto feat_c = (rv ? rv->features : m.p(m.i_feat)).index_select(0, idx);      // [M, Dc]
-  auto scal_v = scaling.index_select(0, idx);                                  // [M, 6]
-  auto offs_v = (rv ? rv->offsets : m.p(m.i_offset)).index_select(0, idx);     // [M, K, 3]
-  torch::Tensor mask_v;                                                        // [M, K]
+  // Every index below is non-decreasing (from nonzero()), as gather_sorted_rows needs.
+  auto anchor_v = gather_sorted_rows(anchor, idx);                               // [M, 3]
+  auto pos01_v = gather_sorted_rows(rv ? rv->positions01 : positions01(), idx);  // [M, 3]
+  auto feat_c = gather_sorted_rows(rv ? rv->features : m.p(m.i_feat), idx);      // [M, Dc]
+  auto scal_v = gather_sorted_rows(scaling, idx);                                // [M, 6]
+  auto offs_v = gather_sorted_rows(rv ? rv->offsets : m.p(m.i_offset), idx);     // [M, K, 3]
+  torch::Tensor mask_v;                                                          // [M, K]
   if (rv)
     mask_v = rv->mask.index_select(0, idx);
   else if (m.opt.use_offset_mask)
-    mask_v = ste_mask(m.p(m.i_mask).index_select(0, idx), m.opt.mask_threshold);
+    mask_v = ste_mask(gather_sorted_rows(m.p(m.i_mask), idx), m.opt.mask_threshold);
   // Training-time quantisation (method.md §2.3): uniform noise of one step.
   if (for_training && !rv && m.context && m.phase != QuantPhase::kRaw) {
     const EntropyParamLayout layout{m.features_model->coded_dim(), K};
@@ -890,7 +892,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   const int64_t L = live.size(0);
   auto live_row = torch::full({M}, -1, idx.options()).index_put_({live}, torch::arange(L));
   auto live_keep = live_row.index_select(0, anchor_of) * K + keep.remainder(K);  // into [L*K]
-  auto input_l = input.index_select(0, live);
+  auto input_l = gather_sorted_rows(input, live);
   auto color_in = input_l;
   if (fx.appearance_dim > 0) {
     auto& emb = m.p(m.i_app);
@@ -899,16 +901,16 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   }
   auto color = torch::sigmoid(m.mlp_color.forward(color_in)).reshape({L * K, 3});
   auto cov = m.mlp_cov.forward(input_l).reshape({L * K, 7});
-  auto sc = scal_v.index_select(0, anchor_of);  // [G, 6]
-  auto offs = offs_v.reshape({M * K, 3}).index_select(0, keep);
-  auto cv = cov.index_select(0, live_keep);  // [G, 7]
+  auto sc = gather_sorted_rows(scal_v, anchor_of);  // [G, 6]
+  auto offs = gather_sorted_rows(offs_v.reshape({M * K, 3}), keep);
+  auto cv = gather_sorted_rows(cov, live_keep);  // [G, 7]
   GaussianBatch& b = out.batch;
-  b.means = anchor_v.index_select(0, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
+  b.means = gather_sorted_rows(anchor_v, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
   b.scales = sc.index({Slice(), Slice(3, 6)}) * torch::sigmoid(cv.index({Slice(), Slice(0, 3)}));
   b.rotations = torch::nn::functional::normalize(
       cv.index({Slice(), Slice(3, 7)}), torch::nn::functional::NormalizeFuncOptions().dim(1));
-  b.opacities = flat_op.index_select(0, keep);
-  b.colors = color.index_select(0, live_keep);
+  b.opacities = gather_sorted_rows(flat_op, keep);
+  b.colors = gather_sorted_rows(color, live_keep);
   if (for_training) b.means2d_grad_holder = torch::zeros({keep.size(0), 2}).requires_grad_(true);
   return out;
 }
