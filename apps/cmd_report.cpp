@@ -17,8 +17,8 @@ void add_report_commands(CLI::App& app, GlobalOptions& /*g*/) {
       "self-contained report.html");
   cmd->add_option("RUNS_DIR", runs_dirs,
                   "directories with the runs' metrics.json files; a run id found again in a "
-                  "later one replaces the earlier run (e.g. OUT/runs, the records of an earlier "
-                  "report, then a directory of new runs)")
+                  "later one replaces the earlier run, unless it is unfinished (e.g. OUT/runs, the "
+                  "records of an earlier report, then a directory of new runs)")
       ->required()
       ->check(CLI::ExistingDirectory);
   cmd->add_option("-o,--output", opt.out_dir,

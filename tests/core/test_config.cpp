@@ -241,6 +241,51 @@ TEST(ConfigBase, MessagesNameTheFileAndLineOfTheKey) {
       << st.message();
 }
 
+// With several bases, each key's message names the base that wrote it, even where the merge
+// put it into a block another base wrote.
+TEST(ConfigBase, MessagesNameTheRightBaseOfSeveral) {
+  const std::string dir =
+      write_configs("several", {{"first.yaml", "train: {iteratons: 5}\n"},
+                                {"second.yaml", "train: {seed: 2}\n"},
+                                {"child.yaml", "base: [first.yaml, second.yaml]\n"}});
+  auto cfg = Config::load_file(dir + "child.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  Status st = cfg->resolve(test_registry()).status();
+  EXPECT_NE(st.message().find(dir + "first.yaml:1:9: train.iteratons: unknown key"),
+            std::string::npos)
+      << st.message();
+}
+
+// A block naming a type is compared with the section's default where the base names none.
+TEST(ConfigBase, TheSectionsDefaultTypeCountsAsTheBasesType) {
+  const std::string dir = write_configs("default_type", {{"base.yaml",
+                                                          "features: {unknown_to_sfa: 1}\n"
+                                                          "rasterizer: {threads: 3}\n"},
+                                                         {"child.yaml",
+                                                          "base: base.yaml\n"
+                                                          "features: {type: sfa}\n"
+                                                          "rasterizer: {type: cpu}\n"}});
+  auto cfg = Config::load_file(dir + "child.yaml");
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  EXPECT_FALSE(cfg->root()["features"]["unknown_to_sfa"].IsDefined());  // identity's block
+  EXPECT_EQ(cfg->root()["rasterizer"]["threads"].as<int>(), 3);         // cpu is the default
+}
+
+TEST(ConfigBase, InheritanceDepthIsLimited) {
+  std::vector<std::pair<std::string, std::string>> files;
+  for (int i = 0; i < 10; ++i)
+    files.emplace_back(
+        "l" + std::to_string(i) + ".yaml",
+        i < 9 ? "base: l" + std::to_string(i + 1) + ".yaml\n" : "train: {seed: 9}\n");
+  const std::string dir = write_configs("depth", files);
+  auto eight = Config::load_file(dir + "l1.yaml");  // 8 levels of base below l1
+  ASSERT_TRUE(eight.ok()) << eight.status().to_string();
+  EXPECT_EQ(eight->root()["train"]["seed"].as<int>(), 9);
+  Status st = Config::load_file(dir + "l0.yaml").status();
+  EXPECT_NE(st.message().find("more than 8 levels of inheritance"), std::string::npos)
+      << st.message();
+}
+
 TEST(ConfigBase, RefusesCyclesMissingFilesAndBadValues) {
   const std::string dir =
       write_configs("refuse", {{"a.yaml", "base: b.yaml\n"},

@@ -158,6 +158,10 @@ TEST(Report, RecordsRebuildTheReportAndNewerRunsReplaceOlderOnes) {
   auto again = collect_runs({runs}, runs + "/report");
   ASSERT_TRUE(again.ok());
   EXPECT_EQ(again->runs.size(), 12u);  // not 24: the records under runs/report are skipped
+  auto other = collect_runs({runs});   // read for another output: still not taken for runs
+  ASSERT_TRUE(other.ok());
+  EXPECT_EQ(other->runs.size(), 12u);
+  for (const auto& r : other->runs) EXPECT_EQ(r.dir.find("/report/"), std::string::npos) << r.dir;
 
   ReportOptions rebuilt_opt = opt;
   rebuilt_opt.out_dir = fresh_dir("records_rebuilt");
@@ -188,6 +192,24 @@ TEST(Report, RecordsRebuildTheReportAndNewerRunsReplaceOlderOnes) {
   EXPECT_EQ(std::count_if(merged->runs.begin(), merged->runs.end(),
                           [](const ReportRun& r) { return r.id == "fern/crpgs/lambda-2"; }),
             1);
+
+  // An unfinished rerun of a recorded run does not displace its record.
+  const std::string rerun = fresh_dir("records_rerun");
+  fs::copy_file(runs + "/fern/crpgs/lambda-2/run.json", rerun + "/run.json");
+  write_text(rerun + "/.running", "");
+  auto kept = collect_runs({first->records, rerun});
+  ASSERT_TRUE(kept.ok()) << kept.status().message();
+  EXPECT_EQ(kept->runs.size(), 12u);
+  EXPECT_TRUE(kept->unfinished.empty());
+
+  // A report killed between swapping its records in left them in runs.old: the next one that
+  // reads OUT/runs finds them.
+  fs::rename(first->records, first->records + ".old");
+  ReportOptions same_out = opt;
+  same_out.out_dir = runs + "/report";
+  auto resumed = write_report({first->records}, same_out);
+  ASSERT_TRUE(resumed.ok()) << resumed.status().message();
+  EXPECT_EQ(tables(read_text(resumed->markdown)), tables(read_text(first->markdown)));
 }
 
 TEST(Report, Base64) {

@@ -43,17 +43,28 @@ TEST(GatherSortedRows, SameValuesAndGradientsAsIndexSelectBitForBit) {
         auto g = gather_grad(src, index, upstream, true);
         EXPECT_TRUE(torch::equal(g, g_ref)) << "index of " << iv.size() << " rows";
       }
+  // No source rows; an upstream gradient that is not contiguous (a transposed view).
+  auto none = torch::zeros({0, 3});
+  EXPECT_EQ(gather_grad(none, torch::zeros({0}, torch::kLong), torch::zeros({0, 3}), true).numel(),
+            0);
+  auto src = torch::randn({6, 4});
+  auto index = torch::tensor({0, 2, 2, 5}, torch::kLong);
+  auto upstream = torch::randn({4, 4}).t();
+  ASSERT_FALSE(upstream.is_contiguous());
+  EXPECT_TRUE(torch::equal(gather_grad(src, index, upstream, true),
+                           gather_grad(src, index, upstream, false)));
 }
 
 TEST(GatherSortedRows, SameGradientWithOneAndTwoThreads) {
   auto src = torch::randn({20000, 6});
   auto index = std::get<0>(torch::randint(20000, {50000}, torch::kLong).sort());
   auto upstream = torch::randn({50000, 6});
+  const int threads = at::get_num_threads();
   at::set_num_threads(1);
   auto g1 = gather_grad(src, index, upstream, true);
   at::set_num_threads(2);
   auto g2 = gather_grad(src, index, upstream, true);
-  at::set_num_threads(1);
+  at::set_num_threads(threads);
   EXPECT_TRUE(torch::equal(g1, g2));
 }
 

@@ -131,10 +131,21 @@ TEST(Ssim, ValueAndGradientMatchAutogradOfTheConvolutionForm) {
   }
 }
 
+// A view (not contiguous) gives the same; a reference that takes a gradient is refused.
+TEST(Ssim, AcceptsViewsAndRefusesAGradientOnTheReference) {
+  auto gt = torch::rand({3, 20, 30}).permute({1, 2, 0});
+  auto x = torch::rand({3, 20, 30}).permute({1, 2, 0});
+  ASSERT_FALSE(x.is_contiguous());
+  EXPECT_EQ(tensor_ssim(x, gt).item<float>(),
+            tensor_ssim(x.contiguous(), gt.contiguous()).item<float>());
+  EXPECT_THROW(tensor_ssim(x, gt.clone().requires_grad_(true)), c10::Error);
+}
+
 TEST(Ssim, SameResultWithOneAndTwoThreads) {
   auto gt = torch::rand({50, 60, 3});
   auto base = (gt + 0.1 * torch::randn({50, 60, 3})).clamp(0, 1);
   std::vector<torch::Tensor> values, grads;
+  const int threads_before = at::get_num_threads();
   for (int threads : {1, 2}) {
     at::set_num_threads(threads);
     auto x = base.clone().requires_grad_(true);
@@ -143,7 +154,7 @@ TEST(Ssim, SameResultWithOneAndTwoThreads) {
     values.push_back(s.detach());
     grads.push_back(x.grad());
   }
-  at::set_num_threads(1);
+  at::set_num_threads(threads_before);
   EXPECT_TRUE(torch::equal(values[0], values[1]));
   EXPECT_TRUE(torch::equal(grads[0], grads[1]));
 }

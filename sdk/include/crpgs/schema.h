@@ -49,9 +49,9 @@ class Schema {
 /// Nodes without a position (set by `--set`) are described as coming from the command line.
 struct SourceRef {
   std::string file;
-  /// Configs a file inherits (`base:`), innermost first: a node found in one of these trees
-  /// is described with that file's name instead of `file`.
-  std::vector<std::pair<std::string, YAML::Node>> bases;
+  /// Configs a file inherits (`base:`), each with the nodes it wrote itself (collected before
+  /// any merge): such a node is described with that file's name instead of `file`.
+  std::vector<std::pair<std::string, std::vector<YAML::Node>>> bases;
   std::string describe(const YAML::Node& node) const;
 };
 

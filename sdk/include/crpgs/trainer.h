@@ -227,7 +227,8 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
                                                 const RateSetup& rate = RateSetup());
 
 /// Differentiable SSIM (11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero
-/// padding, mean over the map). a, b: [H, W, C].
+/// padding, mean over the map). a, b: non-empty float [H, W, C] on the CPU; the gradient flows
+/// to `a` only (`b`, the reference, must not require one).
 torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b);
 /// PSNR in dB of [H, W, C] images in [0, 1].
 double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b);

@@ -68,31 +68,51 @@ YAML::Node without_marks(const YAML::Node& n) {
 
 namespace fs = std::filesystem;
 
-constexpr size_t kMaxBaseDepth = 8;
+constexpr size_t kMaxBaseDepth = 8;  // levels of `base:` below the file loaded
 
-// A block that names another component `type:` than the base's replaces it whole: the base's
-// parameters belong to the other component.
-bool same_component(const YAML::Node& over, const YAML::Node& base) {
-  const YAML::Node a = over["type"], b = base["type"];
-  return !a.IsDefined() || !b.IsDefined() ||
-         (a.IsScalar() && b.IsScalar() && a.Scalar() == b.Scalar());
+// A component block's `type:`, or the section's default type where it names none.
+std::string component_type(const YAML::Node& block, const std::string& section) {
+  const YAML::Node t = block["type"];
+  if (t.IsDefined() && t.IsScalar()) return t.Scalar();
+  for (const auto& s : component_sections())
+    if (section == s.key && s.default_type) return s.default_type;
+  return {};
 }
 
 // Adds every key of `base` that `over` lacks to `over`, recursing where both hold maps. Nodes
-// are shared, not copied, so they keep their positions and SourceRef can name their file.
-void merge_base_into(YAML::Node over, const YAML::Node& base) {
+// are shared, not copied, so they keep their positions and SourceRef can name their file. A
+// top-level block that names another component type than the base's (or than the section's
+// default, where the base names none) replaces it whole: the base's parameters belong to the
+// other component.
+void merge_base_into(YAML::Node over, const YAML::Node& base, bool top) {
   for (const auto& kv : base) {
-    const YAML::Node mine = std::as_const(over)[kv.first.as<std::string>()];
+    const std::string key = kv.first.as<std::string>();
+    const YAML::Node mine = std::as_const(over)[key];
     if (!mine.IsDefined())
       over.force_insert(kv.first, kv.second);
-    else if (mine.IsMap() && kv.second.IsMap() && same_component(mine, kv.second))
-      merge_base_into(mine, kv.second);
+    else if (mine.IsMap() && kv.second.IsMap() &&
+             (!top || !mine["type"].IsDefined() ||
+              component_type(mine, key) == component_type(kv.second, key)))
+      merge_base_into(mine, kv.second, false);
   }
+}
+
+// Every node of a freshly parsed tree, keys included.
+void collect_nodes(const YAML::Node& n, std::vector<YAML::Node>& out) {
+  out.push_back(n);
+  if (n.IsSequence())
+    for (const auto& e : n) collect_nodes(e, out);
+  if (n.IsMap())
+    for (const auto& kv : n) {
+      out.push_back(kv.first);
+      collect_nodes(kv.second, out);
+    }
 }
 
 struct LoadedTree {
   YAML::Node root;
-  std::vector<std::pair<std::string, YAML::Node>> bases;  // innermost first
+  std::vector<YAML::Node> own;  // the nodes this file wrote, before merging its bases
+  std::vector<std::pair<std::string, std::vector<YAML::Node>>> bases;  // as in SourceRef
 };
 
 // `chain`: the files being loaded, outermost first, to refuse a config that inherits itself.
@@ -113,6 +133,7 @@ StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>
       fs::path(path_node.Scalar()).is_relative())
     path_node = (dir / path_node.Scalar()).lexically_normal().string();  // keeps its position
 
+  collect_nodes(t.root, t.own);
   const YAML::Node base = std::as_const(t.root)["base"];
   if (!base.IsDefined()) return t;
   std::vector<YAML::Node> names;
@@ -123,18 +144,23 @@ StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>
       std::any_of(names.begin(), names.end(), [](const YAML::Node& n) { return !n.IsScalar(); }))
     return Status(StatusCode::kInvalidConfig,
                   src.describe(base) + ": base: expected a config file or a list of them");
-  chain.push_back(fs::weakly_canonical(path).string());
+  std::error_code ec;
+  chain.push_back(fs::weakly_canonical(path, ec).string());
+  if (ec) return Status(StatusCode::kIoError, path + ": " + ec.message());
   // Later bases win: merge the last one first, since merging only fills in missing keys.
   for (auto n = names.rbegin(); n != names.rend(); ++n) {
     const fs::path base_path =
         fs::path(n->Scalar()).is_absolute()
             ? fs::path(n->Scalar())
             : (fs::path(path).parent_path() / n->Scalar()).lexically_normal();
-    const std::string canonical = fs::weakly_canonical(base_path).string();
+    const std::string canonical = fs::weakly_canonical(base_path, ec).string();
+    if (ec)
+      return Status(StatusCode::kIoError,
+                    src.describe(*n) + ": base: '" + n->Scalar() + "': " + ec.message());
     if (std::find(chain.begin(), chain.end(), canonical) != chain.end())
       return Status(StatusCode::kInvalidConfig,
                     src.describe(*n) + ": base: '" + n->Scalar() + "' inherits itself");
-    if (chain.size() >= kMaxBaseDepth)
+    if (chain.size() > kMaxBaseDepth)
       return Status(StatusCode::kInvalidConfig, src.describe(*n) + ": base: more than " +
                                                     std::to_string(kMaxBaseDepth) +
                                                     " levels of inheritance");
@@ -142,9 +168,9 @@ StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>
     if (!loaded.ok())
       return Status(loaded.status().code(),
                     src.describe(*n) + ": base: " + loaded.status().message());
-    merge_base_into(t.root, loaded->root);
+    merge_base_into(t.root, loaded->root, true);
     t.bases.insert(t.bases.end(), loaded->bases.begin(), loaded->bases.end());
-    t.bases.emplace_back(base_path.string(), loaded->root);
+    t.bases.emplace_back(base_path.string(), std::move(loaded->own));
   }
   chain.pop_back();
   t.root.remove("base");

@@ -234,24 +234,11 @@ std::string Schema::to_yaml() const {
   return out.c_str();
 }
 
-namespace {
-bool holds(const YAML::Node& tree, const YAML::Node& node) {
-  if (tree.is(node)) return true;
-  if (tree.IsSequence())
-    for (const auto& e : tree)
-      if (holds(e, node)) return true;
-  if (tree.IsMap())
-    for (const auto& kv : tree)
-      if (holds(kv.first, node) || holds(kv.second, node)) return true;
-  return false;
-}
-}  // namespace
-
 std::string SourceRef::describe(const YAML::Node& node) const {
   std::string s = file.empty() ? "<config>" : file;
   if (!node.IsDefined() || node.Mark().line < 0) return s + " (--set)";
-  for (const auto& [base_file, tree] : bases)
-    if (holds(tree, node)) {
+  for (const auto& [base_file, nodes] : bases)
+    if (std::any_of(nodes.begin(), nodes.end(), [&](const YAML::Node& n) { return n.is(node); })) {
       s = base_file;
       break;
     }

@@ -289,6 +289,10 @@ bool safe_relative_id(const std::string& id) {
   return true;
 }
 
+// Marks a report's records directory, so that a later report reading the runs directory that
+// holds it does not take the old copies for runs.
+constexpr const char* kRecordsMarker = ".crpgs-report-records";
+
 // Copies each run's records into OUT/runs/<id>/ through a scratch directory swapped in at the
 // end, so the directory holds exactly the runs of this report even when it was also an input.
 Status write_records(const std::vector<ReportRun>& runs, const std::string& out_dir) {
@@ -297,6 +301,10 @@ Status write_records(const std::vector<ReportRun>& runs, const std::string& out_
   std::error_code ec;
   fs::remove_all(scratch, ec);
   fs::remove_all(previous, ec);
+  fs::create_directories(scratch, ec);
+  if (!ec)
+    CRPGS_RETURN_IF_ERROR(
+        write_file_atomic((scratch / kRecordsMarker).string(), std::string_view()));
   for (size_t i = 0; i < runs.size(); ++i) {
     const fs::path dir =
         scratch / (safe_relative_id(runs[i].id) ? runs[i].id : "run-" + std::to_string(i));
@@ -352,9 +360,11 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
     std::vector<fs::path> dirs;
     for (auto it = fs::recursive_directory_iterator(runs_dir, ec);
          !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
-      if (it->is_directory() && !excluded.empty() &&
-          fs::weakly_canonical(it->path(), ec) == excluded) {
-        it.disable_recursion_pending();
+      std::error_code path_ec;
+      if (it->is_directory() &&
+          ((!excluded.empty() && fs::weakly_canonical(it->path(), path_ec) == excluded) ||
+           fs::exists(it->path() / kRecordsMarker, path_ec))) {
+        it.disable_recursion_pending();  // this report's output, or an older report's records
         continue;
       }
       const auto name = it->path().filename();
@@ -368,9 +378,9 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
       ReportRun r;
       r.dir = dir;
       r.id = fs::relative(d, runs_dir, ec).string();
-      const bool running = fs::exists(d / ".running", ec);
       auto m = read_run_metrics(dir + "/metrics.json");
-      if (m.ok() && !running) {
+      const bool finished = m.ok() && !fs::exists(d / ".running", ec);
+      if (finished) {
         r.metrics = std::move(m).value();
         r.method = r.metrics.method;
         r.dataset = r.metrics.dataset;
@@ -387,16 +397,18 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
           if (auto* v = j.find("index"); v && v->is_number()) r.order = int(v->number);
         }
       }
-      // The same run seen before (an older record, or an unfinished copy): this one replaces it.
-      out.runs.erase(std::remove_if(out.runs.begin(), out.runs.end(),
-                                    [&](const ReportRun& x) { return x.id == r.id; }),
-                     out.runs.end());
-      out.unfinished.erase(std::remove(out.unfinished.begin(), out.unfinished.end(), r.id),
-                           out.unfinished.end());
-      if (!m.ok() || running) {
-        out.unfinished.push_back(r.id);
+      // The same run seen before (an older record, or an unfinished copy): this one replaces
+      // it, unless this one is unfinished and the earlier one finished.
+      auto same = [&](const ReportRun& x) { return x.id == r.id; };
+      if (!finished) {
+        if (std::none_of(out.runs.begin(), out.runs.end(), same) &&
+            std::find(out.unfinished.begin(), out.unfinished.end(), r.id) == out.unfinished.end())
+          out.unfinished.push_back(r.id);
         continue;
       }
+      out.runs.erase(std::remove_if(out.runs.begin(), out.runs.end(), same), out.runs.end());
+      out.unfinished.erase(std::remove(out.unfinished.begin(), out.unfinished.end(), r.id),
+                           out.unfinished.end());
       if (r.method.empty()) r.method = "unnamed";
       if (r.dataset.empty()) r.dataset = "unnamed";
       out.runs.push_back(std::move(r));
@@ -417,6 +429,13 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
   if (runs_dirs.empty()) return Status(StatusCode::kInvalidArgument, "no runs directory given");
   ReportOptions opt = opt_in;
   if (opt.out_dir.empty()) opt.out_dir = (fs::path(runs_dirs[0]) / "report").string();
+  {
+    // A report killed between write_records' two renames left its records only in runs.old.
+    const fs::path records = fs::path(opt.out_dir) / "runs", previous = records.string() + ".old";
+    std::error_code ec;
+    if (!fs::exists(records, ec) && fs::is_directory(previous, ec))
+      fs::rename(previous, records, ec);
+  }
   CRPGS_ASSIGN_OR_RETURN(CollectedRuns collected, collect_runs(runs_dirs, opt.out_dir));
   std::error_code ec;
   fs::create_directories(opt.out_dir, ec);

@@ -48,7 +48,7 @@ void blur_rows(const T* in, T* out, int64_t y0, int64_t y1, int64_t width, int64
       for (int64_t k = k0; k <= k1; ++k) s += g[size_t(k + kRadius)] * src[i + k * channels];
       dst[i] = s;
     };
-    for (int64_t i = 0; i < std::min(inner0, len); ++i) border(i);
+    for (int64_t i = 0; i < inner0; ++i) border(i);
     for (int64_t i = inner0; i < inner1; ++i) {
       T s = 0;
       for (int k = 0; k < kTaps; ++k) s += g[size_t(k)] * src[i + (k - kRadius) * channels];

@@ -793,7 +793,9 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   }
   auto idx = out.visible.nonzero().squeeze(1);  // [M]
   const int64_t M = idx.size(0);
-  // Every index below is non-decreasing (from nonzero()), as gather_sorted_rows needs.
+  // Every gather index here is non-decreasing, as gather_sorted_rows needs: idx, keep and live
+  // come from nonzero(), anchor_of = keep / K, and live_keep numbers the Gaussians of the live
+  // anchors in order.
   auto anchor_v = gather_sorted_rows(anchor, idx);                               // [M, 3]
   auto pos01_v = gather_sorted_rows(rv ? rv->positions01 : positions01(), idx);  // [M, 3]
   auto feat_c = gather_sorted_rows(rv ? rv->features : m.p(m.i_feat), idx);      // [M, Dc]

@@ -1,7 +1,6 @@
 /// @file sorted_gather.cpp
 /// @brief gather_sorted_rows: the neural Gaussians' row gathers (anchor -> visible anchor ->
-/// Gaussian). Their backward as index_select's took ~60 ms of a ~510 ms fern iteration at 73k
-/// anchors (zero fill + single-threaded index_add_).
+/// Gaussian), whose backward as index_select's was a large share of a late fern iteration.
 #include "model/sorted_gather.h"
 
 #include <torch/torch.h>

@@ -29,8 +29,10 @@ struct CollectedRuns {
 };
 
 /// Walks each of `runs_dirs` recursively for metrics.json (and run.json) files, skipping the
-/// directory `exclude` (a report's own output). A run id seen again replaces the earlier run:
-/// a later directory wins, so new runs can be reported together with an older report's records.
+/// directory `exclude` (a report's own output) and any other report's records found inside.
+/// A run id seen again replaces the earlier run (a later directory wins, so new runs can be
+/// reported together with an older report's records), except that an unfinished copy does not
+/// replace a finished run.
 StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
                                      const std::string& exclude = "");
 
