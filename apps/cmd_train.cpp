@@ -1,6 +1,7 @@
 /// @file cmd_train.cpp
 /// @brief `crpgs train`, `crpgs eval`, `crpgs demo`.
 #include <csignal>
+#include <cstdlib>
 #include <filesystem>
 
 #include "cli_common.h"
@@ -71,6 +72,10 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.height,
               static_cast<long long>(t.model().num_anchors()));
   if (t.iteration() > 0) std::printf("resumed at iteration %d\n", t.iteration());
+  const char *omp_wait = std::getenv("OMP_WAIT_POLICY"),
+             *blas_timeout = std::getenv("OPENBLAS_THREAD_TIMEOUT");
+  std::printf("idle compute threads: OMP_WAIT_POLICY=%s, OPENBLAS_THREAD_TIMEOUT=%s\n",
+              omp_wait ? omp_wait : "(unset)", blas_timeout ? blas_timeout : "(unset)");
 
   TrainControl control;
   g_control = &control;

@@ -56,6 +56,10 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
             0)
       << log;
   const double full_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  // The CLI restarted itself with idle compute threads that sleep (apps/main.cpp).
+  EXPECT_NE(log.find("idle compute threads: OMP_WAIT_POLICY=PASSIVE, OPENBLAS_THREAD_TIMEOUT=4"),
+            std::string::npos)
+      << log;
 
   // Kill at a random moment of the run (seed printed so a failure can be replayed).
   const unsigned seed = std::random_device{}();
