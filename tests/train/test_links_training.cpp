@@ -356,6 +356,9 @@ TEST(ShippedConfigs, ResolveAndFollowTheMethod) {
   ASSERT_TRUE(fast.ok());
   EXPECT_EQ(fast->schedule.iterations, 4000);
   EXPECT_EQ(fast->schedule.link_builds, (std::vector<int>{3000, 3300, 3600}));
+  EXPECT_DOUBLE_EQ(fast->checkpoint_minutes, 15);
+  ASSERT_TRUE(cfg->apply_override("train.checkpoint_minutes=2.5").ok());
+  EXPECT_DOUBLE_EQ(train_options_from_config(cfg->resolve(reg).value())->checkpoint_minutes, 2.5);
 }
 
 }  // namespace

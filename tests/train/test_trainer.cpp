@@ -384,6 +384,25 @@ TEST(Trainer, PersistentNonFiniteGradientsStopWithoutABrokenCheckpoint) {
   EXPECT_EQ(restored->nonfinite_parameter_group(), "");
 }
 
+TEST(Trainer, CheckpointsAlsoAfterTheConfiguredMinutes) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(6);
+  to.checkpoint_interval = 0;
+  to.output_dir = tmp_dir("by_time");
+  // Any positive time has passed after each iteration: a checkpoint after every one, and the
+  // final one; minutes = 0 leaves only the final one.
+  to.checkpoint_minutes = 1e-12;
+  Recorder every;
+  ASSERT_TRUE(trainer(ds, to)->train(&every).ok());
+  EXPECT_EQ(every.checkpoints.size(), 6u);
+  to.checkpoint_minutes = 0;
+  to.output_dir = tmp_dir("by_time_off");
+  Recorder off;
+  ASSERT_TRUE(trainer(ds, to)->train(&off).ok());
+  EXPECT_EQ(off.checkpoints.size(), 1u);
+}
+
 TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;

@@ -379,6 +379,7 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   const int first = iteration_;
   auto last_report = Clock::now();
   int last_report_it = iteration_;
+  auto last_checkpoint = Clock::now();
   double rate = 0;
   const View* held_out = !dataset_.test.empty()
                              ? &dataset_.test.front()
@@ -470,14 +471,18 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
       progress->on_iteration(p);
     }
-    if ((options_.checkpoint_interval > 0 && it % options_.checkpoint_interval == 0 &&
-         it < sc.iterations) ||
-        (control && control->save.exchange(false))) {
+    const bool due_by_count = options_.checkpoint_interval > 0 &&
+                              it % options_.checkpoint_interval == 0 && it < sc.iterations;
+    const bool due_by_time = options_.checkpoint_minutes > 0 && !checkpoint_path().empty() &&
+                             it < sc.iterations &&
+                             seconds_since(last_checkpoint) >= 60 * options_.checkpoint_minutes;
+    if (due_by_count || due_by_time || (control && control->save.exchange(false))) {
       Status st = checkpoint(progress);
       if (!st.ok()) {
         CRPGS_RETURN_IF_ERROR(recover(st));
         continue;
       }
+      last_checkpoint = Clock::now();
     }
     if (control && control->stop.load()) {
       CRPGS_RETURN_IF_ERROR(checkpoint(progress));
@@ -632,6 +637,7 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
     o.lambda_scaling = get(t, "lambda_scaling", o.lambda_scaling);
     o.eval_interval = get(t, "eval_interval", o.eval_interval);
     o.checkpoint_interval = get(t, "checkpoint_interval", o.checkpoint_interval);
+    o.checkpoint_minutes = get(t, "checkpoint_minutes", o.checkpoint_minutes);
     o.threads = get(t, "threads", o.threads);
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("train config: ") + e.what());
