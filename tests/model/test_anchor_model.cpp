@@ -308,6 +308,37 @@ TEST(AnchorModel, PruningRemovesAnchorsWithAllTheirState) {
   EXPECT_LE(m->scaling_raw().slice(1, 3, 6).max().item<float>(), 0.05f);
 }
 
+TEST(AnchorModel, OptimizerStepIsTorchAdam) {
+  SmallScene s;
+  auto m = make_model(s, small_options());
+  std::vector<torch::Tensor> mirror;
+  std::vector<torch::optim::OptimizerParamGroup> groups;
+  for (const auto& [name, p] : m->named_parameters()) {
+    mirror.push_back(p.detach().clone().requires_grad_(true));
+    groups.emplace_back(
+        std::vector<torch::Tensor>{mirror.back()},
+        std::make_unique<torch::optim::AdamOptions>(
+            torch::optim::AdamOptions(m->learning_rate(name)).betas({0.9, 0.999}).eps(1e-15)));
+  }
+  torch::optim::Adam reference(groups);
+  torch::manual_seed(4);
+  for (int step = 0; step < 4; ++step) {  // bias corrections differ per step
+    size_t i = 0;
+    for (const auto& [name, p] : m->named_parameters()) {
+      auto g = torch::randn(p.sizes()) * (i % 2 ? 1e-6 : 1.0);  // tiny gradients too
+      p.mutable_grad() = g;
+      mirror[i++].mutable_grad() = g.clone();
+    }
+    m->optimizer_step();
+    reference.step();
+    i = 0;
+    for (const auto& [name, p] : m->named_parameters()) {
+      EXPECT_FALSE(p.grad().defined()) << name;
+      EXPECT_TRUE(torch::allclose(p, mirror[i++], 1e-5, 1e-7)) << name << " step " << step;
+    }
+  }
+}
+
 TEST(AnchorModel, StateDictRoundTripRestoresEverything) {
   SmallScene s;
   auto m = make_model(s, small_options());
