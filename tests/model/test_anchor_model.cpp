@@ -7,6 +7,7 @@
 #include "crpgs/anchor_model.h"
 #include "crpgs/components.h"
 #include "crpgs/scene_generator.h"
+#include "model/chunked_mlp.h"
 #include "model/sorted_gather.h"
 #include "raster/cpu_rasterizer.h"
 
@@ -66,6 +67,68 @@ TEST(GatherSortedRows, SameGradientWithOneAndTwoThreads) {
   auto g2 = gather_grad(src, index, upstream, true);
   at::set_num_threads(threads);
   EXPECT_TRUE(torch::equal(g1, g2));
+}
+
+// Output and the five gradients of sum(upstream * mlp(x)), fused or as libtorch ops.
+std::vector<torch::Tensor> mlp_and_grads(const std::vector<torch::Tensor>& in0,
+                                         const torch::Tensor& upstream, bool chunked,
+                                         bool x_grad = true) {
+  std::vector<torch::Tensor> in;
+  for (size_t i = 0; i < in0.size(); ++i)
+    in.push_back(in0[i].clone().requires_grad_(i > 0 || x_grad));
+  auto y = chunked ? chunked_mlp(in[0], in[1], in[2], in[3], in[4])
+                   : torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4]);
+  (y * upstream).sum().backward();
+  std::vector<torch::Tensor> out{y.detach()};
+  for (auto& t : in) out.push_back(t.grad());
+  return out;
+}
+
+std::vector<torch::Tensor> random_mlp(int64_t rows, torch::ScalarType dtype) {
+  return {torch::randn({rows, 9}, dtype), torch::randn({6, 9}, dtype), torch::randn({6}, dtype),
+          torch::randn({4, 6}, dtype), torch::randn({4}, dtype)};
+}
+
+TEST(ChunkedMlp, SameValuesAndGradientsAsLibtorch) {
+  torch::manual_seed(8);
+  // One partial chunk, exactly one chunk, several with a partial last one, none.
+  for (int64_t rows : {1, 37, 1024, 2500, 0}) {
+    auto in = random_mlp(rows, torch::kDouble);
+    auto upstream = torch::randn({rows, 4}, torch::kDouble);
+    auto ref = mlp_and_grads(in, upstream, false);
+    auto got = mlp_and_grads(in, upstream, true);
+    for (size_t i = 0; i < ref.size(); ++i) {
+      ASSERT_TRUE(got[i].defined()) << "rows " << rows << " output " << i;
+      EXPECT_EQ(got[i].sizes(), ref[i].sizes()) << "rows " << rows << " output " << i;
+      EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-12, 1e-12)) << "rows " << rows << " " << i;
+    }
+  }
+  // An input that needs no gradient gets none; without autograd only the forward runs.
+  auto in = random_mlp(300, torch::kFloat);
+  EXPECT_FALSE(mlp_and_grads(in, torch::ones({300, 4}), true, false)[1].defined());
+  torch::NoGradGuard no_grad;
+  auto y = chunked_mlp(in[0], in[1], in[2], in[3], in[4]);
+  EXPECT_FALSE(y.requires_grad());
+  EXPECT_TRUE(torch::allclose(
+      y, torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4]), 1e-5, 1e-5));
+}
+
+TEST(ChunkedMlp, SameResultsWithOneAndTwoThreads) {
+  torch::manual_seed(9);
+  auto in = random_mlp(5000, torch::kFloat);
+  auto upstream = torch::randn({5000, 4});
+  const int threads = at::get_num_threads();
+  at::set_num_threads(1);
+  auto one = mlp_and_grads(in, upstream, true);
+  at::set_num_threads(2);
+  auto two = mlp_and_grads(in, upstream, true);
+  at::set_num_threads(threads);
+  for (size_t i = 0; i < one.size(); ++i) EXPECT_TRUE(torch::equal(one[i], two[i])) << i;
+}
+
+TEST(ChunkedMlp, RefusesShapesThatDoNotChain) {
+  auto in = random_mlp(4, torch::kFloat);
+  EXPECT_THROW(chunked_mlp(in[0], in[3], in[2], in[1], in[4]), c10::Error);
 }
 
 TEST(GatherSortedRows, RefusesAnIndexItsBackwardCannotUse) {

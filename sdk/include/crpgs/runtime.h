@@ -27,6 +27,19 @@ class ScopedComputeThreads {
   int blas_threads_;
 };
 
+/// OpenBLAS on one thread for a scope, for code that runs independent GEMMs in parallel itself
+/// (OpenBLAS runs a call with one thread in the calling thread). Restores the count.
+class SingleThreadedBlas {
+ public:
+  SingleThreadedBlas();
+  ~SingleThreadedBlas();
+  SingleThreadedBlas(const SingleThreadedBlas&) = delete;
+  SingleThreadedBlas& operator=(const SingleThreadedBlas&) = delete;
+
+ private:
+  int blas_threads_;
+};
+
 /// Keeps freed memory in the heap instead of returning it to the kernel: glibc otherwise maps
 /// every block over 32 MiB anew and unmaps it on free, so each training iteration page-faults
 /// its large tensors in again (~25k faults/s on fern, 14 % of the time in this VM). Memory

@@ -54,6 +54,14 @@ ScopedComputeThreads::~ScopedComputeThreads() {
   set_pools(torch_threads_, blas_threads_);
 }
 
+SingleThreadedBlas::SingleThreadedBlas() : blas_threads_(openblas().get ? openblas().get() : 0) {
+  if (blas_threads_ > 1) openblas().set(1);
+}
+
+SingleThreadedBlas::~SingleThreadedBlas() {
+  if (blas_threads_ > 1) openblas().set(blas_threads_);
+}
+
 void keep_freed_memory_in_heap() {
   // Blocks of any size come from the heap, and a free never trims it.
   mallopt(M_MMAP_THRESHOLD, 1 << 30);

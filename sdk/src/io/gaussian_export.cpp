@@ -7,6 +7,8 @@
 
 #include <torch/nn/functional/normalization.h>
 
+#include "model/chunked_mlp.h"
+
 namespace crpgs {
 namespace {
 
@@ -30,8 +32,8 @@ class AllVisible final : public Rasterizer {
 /// The generation MLPs as AnchorModel applies them: Linear, ReLU, Linear.
 torch::Tensor mlp(const std::map<std::string, torch::Tensor>& t, const std::string& name,
                   const torch::Tensor& x) {
-  return torch::linear(torch::relu(torch::linear(x, t.at(name + ".w1"), t.at(name + ".b1"))),
-                       t.at(name + ".w2"), t.at(name + ".b2"));
+  return chunked_mlp(x, t.at(name + ".w1"), t.at(name + ".b1"), t.at(name + ".w2"),
+                     t.at(name + ".b2"));
 }
 
 }  // namespace

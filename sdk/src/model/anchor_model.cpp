@@ -4,6 +4,8 @@
 #include "crpgs/anchor_model.h"
 
 #include "crpgs/links.h"
+#include "model/adam_kernel.h"
+#include "model/chunked_mlp.h"
 #include "model/sorted_gather.h"
 
 #include <torch/torch.h>
@@ -25,9 +27,7 @@ constexpr double kAdamBeta1 = 0.9, kAdamBeta2 = 0.999, kAdamEps = 1e-15;
 
 struct Mlp {
   torch::Tensor w1, b1, w2, b2;
-  torch::Tensor forward(const torch::Tensor& x) const {
-    return torch::linear(torch::relu(torch::linear(x, w1, b1)), w2, b2);
-  }
+  torch::Tensor forward(const torch::Tensor& x) const { return chunked_mlp(x, w1, b1, w2, b2); }
 };
 
 // torch.nn.Linear's default init: kaiming_uniform(a=sqrt(5)) = U(-1/sqrt(in), 1/sqrt(in)) for
@@ -1069,23 +1069,15 @@ void adam_update(torch::Tensor& param, const torch::Tensor& grad, torch::Tensor&
     param.addcdiv_(m, (v.sqrt() / std::sqrt(bc2)).add_(kAdamEps), -lr / bc1);
     return;
   }
+  const AdamScalars s{float(kAdamBeta1),     float(kAdamBeta2),         float(1 - kAdamBeta1),
+                      float(1 - kAdamBeta2), float(1 / std::sqrt(bc2)), float(kAdamEps),
+                      float(lr / bc1)};
   float* p = param.data_ptr<float>();
   float* mp = m.data_ptr<float>();
   float* vp = v.data_ptr<float>();
   const float* gp = grad.data_ptr<float>();
-  const float b1 = kAdamBeta1, b2 = kAdamBeta2, c1 = float(1 - kAdamBeta1),
-              c2 = float(1 - kAdamBeta2), inv_sqrt_bc2 = float(1 / std::sqrt(bc2)),
-              eps = float(kAdamEps), step_size = float(lr / bc1);
-  at::parallel_for(0, param.numel(), 1 << 15, [&](int64_t b, int64_t e) {
-    for (int64_t i = b; i < e; ++i) {
-      const float g = gp[i];
-      const float mi = b1 * mp[i] + c1 * g;
-      const float vi = b2 * vp[i] + c2 * g * g;
-      mp[i] = mi;
-      vp[i] = vi;
-      p[i] -= step_size * mi / (std::sqrt(vi) * inv_sqrt_bc2 + eps);
-    }
-  });
+  at::parallel_for(0, param.numel(), 1 << 15,
+                   [&](int64_t b, int64_t e) { adam_kernel(p, mp, vp, gp, b, e, s); });
 }
 }  // namespace
 

@@ -1,0 +1,17 @@
+/// @file chunked_mlp.h
+/// @brief The neural-Gaussian MLPs (Linear, ReLU, Linear) over row chunks in parallel.
+#pragma once
+
+#include <torch/types.h>
+
+namespace crpgs {
+
+/// relu(x w1^T + b1) w2^T + b2 for x [N, C], w1 [H, C], w2 [O, H], with gradients for all five.
+/// Rows go in fixed chunks, each chunk's GEMMs on one thread, chunks in parallel: the weight
+/// gradients (a reduction over N into a small matrix) otherwise ran on one core, as BLAS splits
+/// a GEMM only over its output. The weight gradients sum the chunks' partial sums in chunk
+/// order, so results do not depend on the thread count.
+torch::Tensor chunked_mlp(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1,
+                          const torch::Tensor& w2, const torch::Tensor& b2);
+
+}  // namespace crpgs
