@@ -103,11 +103,16 @@ TEST(ChunkedMlp, SameValuesAndGradientsAsLibtorch) {
       EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-12, 1e-12)) << "rows " << rows << " " << i;
     }
   }
-  // An input that needs no gradient gets none; without autograd only the forward runs.
-  auto in = random_mlp(300, torch::kFloat);
-  EXPECT_FALSE(mlp_and_grads(in, torch::ones({300, 4}), true, false)[1].defined());
+  // An input that needs no gradient gets none; without autograd only the forward runs, also
+  // with parameters that require gradients and chunks on several threads.
+  auto in = random_mlp(5000, torch::kFloat);
+  EXPECT_FALSE(mlp_and_grads(in, torch::ones({5000, 4}), true, false)[1].defined());
+  for (size_t i = 1; i < in.size(); ++i) in[i].requires_grad_(true);
+  const int threads = at::get_num_threads();
+  at::set_num_threads(2);
   torch::NoGradGuard no_grad;
   auto y = chunked_mlp(in[0], in[1], in[2], in[3], in[4]);
+  at::set_num_threads(threads);
   EXPECT_FALSE(y.requires_grad());
   EXPECT_TRUE(torch::allclose(
       y, torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4]), 1e-5, 1e-5));

@@ -113,10 +113,11 @@ torch::Tensor chunked_mlp(const torch::Tensor& x, const torch::Tensor& w1, const
                     (x.requires_grad() || w1.requires_grad() || b1.requires_grad() ||
                      w2.requires_grad() || b2.requires_grad());
   if (grad) return ChunkedMlp::apply(x, w1, b1, w2, b2);
-  const at::Tensor xd = x.contiguous();
+  // Detached: grad mode is per thread, and the pool's threads have it on.
+  const at::Tensor xd = x.detach().contiguous();
   at::Tensor h = at::empty({xd.size(0), w1.size(0)}, xd.options());
   at::Tensor y = at::empty({xd.size(0), w2.size(0)}, xd.options());
-  forward_into(xd, w1, b1, w2, b2, h, y);
+  forward_into(xd, w1.detach(), b1.detach(), w2.detach(), b2.detach(), h, y);
   return y;
 }
 
