@@ -136,6 +136,98 @@ TEST(ChunkedMlp, RefusesShapesThatDoNotChain) {
   EXPECT_THROW(chunked_mlp(in[0], in[3], in[2], in[1], in[4]), c10::Error);
 }
 
+// sparse_mlp's output and gradients (of sum(upstream * y)), or the dense MLP's selected rows.
+std::vector<torch::Tensor> sparse_and_grads(const std::vector<torch::Tensor>& in0,
+                                            const torch::Tensor& row, const torch::Tensor& slot,
+                                            int64_t O, const torch::Tensor& upstream, bool sparse) {
+  std::vector<torch::Tensor> in;
+  for (const auto& t : in0) in.push_back(t.clone().requires_grad_(true));
+  const int64_t K = in[3].size(0) / O;
+  auto y = sparse ? sparse_mlp(in[0], in[1], in[2], in[3], in[4], row, slot, O)
+                  : torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4])
+                        .reshape({-1, O})
+                        .index_select(0, row * K + slot);
+  (y * upstream).sum().backward();
+  std::vector<torch::Tensor> out{y.detach()};
+  for (auto& t : in) out.push_back(t.grad());
+  return out;
+}
+
+// `rows` anchors, K = 10 slots of O outputs; every third anchor has no Gaussian, the others a
+// random subset of their slots.
+struct SparseCase {
+  std::vector<torch::Tensor> in;
+  torch::Tensor row, slot;
+  SparseCase(int64_t rows, int64_t O) {
+    in = {torch::randn({rows, 9}), torch::randn({6, 9}), torch::randn({6}),
+          torch::randn({10 * O, 6}), torch::randn({10 * O})};
+    auto kept = torch::rand({rows, 10}) < 0.3;
+    kept.index_put_({torch::arange(0, rows, 3)}, false);
+    auto flat = kept.reshape({-1}).nonzero().squeeze(1);
+    row = flat.div(10, "floor");
+    slot = flat.remainder(10);
+  }
+};
+
+TEST(SparseMlp, SameValuesAndGradientsAsTheDenseMlpsSelectedOutputs) {
+  torch::manual_seed(10);
+  for (int64_t O : {3, 7, 8})
+    for (int64_t rows : {1, 5, 1024, 2500, 0}) {
+      SparseCase c(rows, O);
+      auto upstream = torch::randn({c.row.numel(), O});
+      auto ref = sparse_and_grads(c.in, c.row, c.slot, O, upstream, false);
+      auto got = sparse_and_grads(c.in, c.row, c.slot, O, upstream, true);
+      for (size_t i = 0; i < ref.size(); ++i) {
+        ASSERT_TRUE(got[i].defined()) << O << " outputs, " << rows << " rows, tensor " << i;
+        EXPECT_EQ(got[i].sizes(), ref[i].sizes()) << O << " outputs, " << rows << " rows, " << i;
+        EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-4, 1e-4))
+            << O << " outputs, " << rows << " rows, tensor " << i << ": max diff "
+            << (got[i] - ref[i]).abs().max().item<float>();
+      }
+    }
+  // Without autograd, on two threads, with parameters that require gradients.
+  SparseCase c(3000, 7);
+  for (size_t i = 1; i < c.in.size(); ++i) c.in[i].requires_grad_(true);
+  const int threads = at::get_num_threads();
+  at::set_num_threads(2);
+  torch::NoGradGuard no_grad;
+  auto y = sparse_mlp(c.in[0], c.in[1], c.in[2], c.in[3], c.in[4], c.row, c.slot, 7);
+  at::set_num_threads(threads);
+  EXPECT_TRUE(torch::allclose(
+      y,
+      torch::linear(torch::relu(torch::linear(c.in[0], c.in[1], c.in[2])), c.in[3], c.in[4])
+          .reshape({-1, 7})
+          .index_select(0, c.row * 10 + c.slot),
+      1e-4, 1e-4));
+}
+
+TEST(SparseMlp, SameResultsWithOneAndTwoThreads) {
+  torch::manual_seed(11);
+  SparseCase c(5000, 7);
+  auto upstream = torch::randn({c.row.numel(), 7});
+  const int threads = at::get_num_threads();
+  at::set_num_threads(1);
+  auto one = sparse_and_grads(c.in, c.row, c.slot, 7, upstream, true);
+  at::set_num_threads(2);
+  auto two = sparse_and_grads(c.in, c.row, c.slot, 7, upstream, true);
+  at::set_num_threads(threads);
+  for (size_t i = 0; i < one.size(); ++i) EXPECT_TRUE(torch::equal(one[i], two[i])) << i;
+}
+
+TEST(SparseMlp, RefusesRowsAndSlotsItCannotUse) {
+  SparseCase c(4, 3);
+  auto call = [&](std::vector<int64_t> row, std::vector<int64_t> slot, int64_t O = 3) {
+    sparse_mlp(c.in[0], c.in[1], c.in[2], c.in[3], c.in[4], torch::tensor(row, torch::kLong),
+               torch::tensor(slot, torch::kLong), O);
+  };
+  EXPECT_NO_THROW(call({0, 1, 3}, {0, 9, 2}));
+  EXPECT_THROW(call({1, 0}, {0, 0}), c10::Error);     // decreasing rows
+  EXPECT_THROW(call({0, 4}, {0, 0}), c10::Error);     // row out of range
+  EXPECT_THROW(call({0, 1}, {0, 10}), c10::Error);    // slot out of range
+  EXPECT_THROW(call({0, 1}, {0}), c10::Error);        // lengths differ
+  EXPECT_THROW(call({0, 1}, {0, 0}, 9), c10::Error);  // more outputs than lanes
+}
+
 TEST(GatherSortedRows, RefusesAnIndexItsBackwardCannotUse) {
   auto src = torch::randn({6, 2}).requires_grad_(true);
   for (const std::vector<int64_t>& bad :

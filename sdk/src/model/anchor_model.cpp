@@ -794,8 +794,8 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   auto idx = out.visible.nonzero().squeeze(1);  // [M]
   const int64_t M = idx.size(0);
   // Every gather index here is non-decreasing, as gather_sorted_rows needs: idx, keep and live
-  // come from nonzero(), anchor_of = keep / K, and live_keep numbers the Gaussians of the live
-  // anchors in order.
+  // come from nonzero() and anchor_of = keep / K (so sparse_mlp's rows, the live anchors of the
+  // Gaussians, do not decrease either).
   auto anchor_v = gather_sorted_rows(anchor, idx);                               // [M, 3]
   auto pos01_v = gather_sorted_rows(rv ? rv->positions01 : positions01(), idx);  // [M, 3]
   auto feat_c = gather_sorted_rows(rv ? rv->features : m.p(m.i_feat), idx);      // [M, Dc]
@@ -893,7 +893,8 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   auto live = opacity.detach().gt(0).any(1).nonzero().squeeze(1);  // [L]
   const int64_t L = live.size(0);
   auto live_row = torch::full({M}, -1, idx.options()).index_put_({live}, torch::arange(L));
-  auto live_keep = live_row.index_select(0, anchor_of) * K + keep.remainder(K);  // into [L*K]
+  auto row_of = live_row.index_select(0, anchor_of);  // [G], into [L], non-decreasing
+  auto slot_of = keep.remainder(K);                   // [G]
   auto input_l = gather_sorted_rows(input, live);
   auto color_in = input_l;
   if (fx.appearance_dim > 0) {
@@ -901,18 +902,20 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
     auto e = camera_index >= 0 && camera_index < emb.size(0) ? emb[camera_index] : emb.mean(0);
     color_in = torch::cat({input_l, e.unsqueeze(0).expand({L, e.size(0)})}, 1);
   }
-  auto color = torch::sigmoid(m.mlp_color.forward(color_in)).reshape({L * K, 3});
-  auto cov = m.mlp_cov.forward(input_l).reshape({L * K, 7});
+  // Only the kept Gaussians' outputs of the last layer.
+  auto sparse = [&](const Mlp& mlp, const torch::Tensor& x, int64_t outputs) {
+    return sparse_mlp(x, mlp.w1, mlp.b1, mlp.w2, mlp.b2, row_of, slot_of, outputs);
+  };
   auto sc = gather_sorted_rows(scal_v, anchor_of);  // [G, 6]
   auto offs = gather_sorted_rows(offs_v.reshape({M * K, 3}), keep);
-  auto cv = gather_sorted_rows(cov, live_keep);  // [G, 7]
+  auto cv = sparse(m.mlp_cov, input_l, 7);  // [G, 7]
   GaussianBatch& b = out.batch;
   b.means = gather_sorted_rows(anchor_v, anchor_of) + offs * sc.index({Slice(), Slice(0, 3)});
   b.scales = sc.index({Slice(), Slice(3, 6)}) * torch::sigmoid(cv.index({Slice(), Slice(0, 3)}));
   b.rotations = torch::nn::functional::normalize(
       cv.index({Slice(), Slice(3, 7)}), torch::nn::functional::NormalizeFuncOptions().dim(1));
   b.opacities = gather_sorted_rows(flat_op, keep);
-  b.colors = gather_sorted_rows(color, live_keep);
+  b.colors = torch::sigmoid(sparse(m.mlp_color, color_in, 3));
   if (for_training) b.means2d_grad_holder = torch::zeros({keep.size(0), 2}).requires_grad_(true);
   return out;
 }

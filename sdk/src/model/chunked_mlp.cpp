@@ -6,7 +6,12 @@
 
 #include <ATen/Parallel.h>
 
+#include <algorithm>
+#include <utility>
+#include <vector>
+
 #include "crpgs/runtime.h"
+#include "model/sparse_head_kernels.h"
 
 namespace crpgs {
 namespace {
@@ -101,7 +106,147 @@ struct ChunkedMlp : public torch::autograd::Function<ChunkedMlp> {
   }
 };
 
+// Gaussians [g_first[c], g_first[c + 1]) belong to chunk c's rows (row is non-decreasing).
+std::vector<int64_t> gaussians_by_chunk(const at::Tensor& row, int64_t rows) {
+  const int64_t* r = row.data_ptr<int64_t>();
+  const int64_t n = row.numel(), chunks = chunk_count(rows);
+  std::vector<int64_t> first(size_t(chunks) + 1);
+  for (int64_t c = 0; c <= chunks; ++c)
+    first[size_t(c)] = std::lower_bound(r, r + n, std::min(rows, c * kChunkRows)) - r;
+  return first;
+}
+
+// w2 [K*O, H] -> [K, H, kLanes]: slot s's outputs for hidden unit k in one zero-padded vector.
+at::Tensor slot_lanes(const at::Tensor& w2, int64_t O) {
+  const int64_t H = w2.size(1), K = w2.size(0) / O;
+  return at::constant_pad_nd(w2.view({K, O, H}).permute({0, 2, 1}), {0, sparse_head::kLanes - O})
+      .contiguous();
+}
+
+// The forward of sparse_mlp on detached tensors; returns h (after the ReLU) and y.
+std::pair<at::Tensor, at::Tensor> sparse_forward(const at::Tensor& x, const at::Tensor& w1,
+                                                 const at::Tensor& b1, const at::Tensor& w2,
+                                                 const at::Tensor& b2, const at::Tensor& row,
+                                                 const at::Tensor& slot, int64_t O) {
+  const at::Tensor lanes = slot_lanes(w2, O), b2c = b2.contiguous();
+  const int64_t rows = x.size(0), H = w1.size(0);
+  at::Tensor h = at::empty({rows, H}, x.options());
+  at::Tensor y = at::empty({row.numel(), O}, x.options());
+  const std::vector<int64_t> g_first = gaussians_by_chunk(row, rows);
+  const sparse_head::Layer layer{h.data_ptr<float>(),
+                                 H,
+                                 int(O),
+                                 w2.data_ptr<float>(),
+                                 lanes.data_ptr<float>(),
+                                 b2c.data_ptr<float>(),
+                                 row.data_ptr<int64_t>(),
+                                 slot.data_ptr<int64_t>()};
+  const at::Tensor w1t = w1.t();
+  for_each_chunk(rows, [&](int64_t c, int64_t first, int64_t n) {
+    at::Tensor hc = h.narrow(0, first, n);
+    at::addmm_out(hc, b1, x.narrow(0, first, n), w1t);
+    hc.clamp_min_(0);
+    sparse_head::forward(layer, g_first[size_t(c)], g_first[size_t(c) + 1], y.data_ptr<float>());
+  });
+  return {h, y};
+}
+
+struct SparseMlp : public torch::autograd::Function<SparseMlp> {
+  static at::Tensor forward(AutogradContext* ctx, const at::Tensor& x, const at::Tensor& w1,
+                            const at::Tensor& b1, const at::Tensor& w2, const at::Tensor& b2,
+                            const at::Tensor& row, const at::Tensor& slot, int64_t O) {
+    const at::Tensor xd = x.detach().contiguous();
+    auto [h, y] = sparse_forward(xd, w1.detach(), b1.detach(), w2.detach().contiguous(),
+                                 b2.detach(), row, slot, O);
+    ctx->save_for_backward({xd, w1, w2, h, row, slot});
+    ctx->saved_data["x_grad"] = x.requires_grad();
+    ctx->saved_data["outputs"] = O;
+    return y;
+  }
+
+  static variable_list backward(AutogradContext* ctx, variable_list grads) {
+    const auto saved = ctx->get_saved_variables();
+    const at::Tensor x = saved[0], w1 = saved[1].detach(), h = saved[3];
+    const at::Tensor w2 = saved[2].detach().contiguous(), row = saved[4], slot = saved[5];
+    const int64_t O = ctx->saved_data["outputs"].toInt();
+    const at::Tensor dy = grads[0].contiguous();
+    const int64_t rows = x.size(0), chunks = chunk_count(rows);
+    const int64_t C = x.size(1), H = w1.size(0), KO = w2.size(0);
+    const auto opt = dy.options();
+    const bool x_grad = ctx->saved_data["x_grad"].toBool();
+    at::Tensor dw2 = at::zeros({std::max<int64_t>(chunks, 1), KO, H}, opt);
+    at::Tensor db2 = at::zeros({std::max<int64_t>(chunks, 1), KO}, opt);
+    at::Tensor dw1 = at::zeros({std::max<int64_t>(chunks, 1), H, C}, opt);
+    at::Tensor db1 = at::zeros({std::max<int64_t>(chunks, 1), H}, opt);
+    at::Tensor dx = x_grad ? at::empty({rows, C}, opt) : at::Tensor();
+    const std::vector<int64_t> g_first = gaussians_by_chunk(row, rows);
+    const sparse_head::Layer layer{h.data_ptr<float>(),
+                                   H,
+                                   int(O),
+                                   w2.data_ptr<float>(),
+                                   nullptr,
+                                   nullptr,
+                                   row.data_ptr<int64_t>(),
+                                   slot.data_ptr<int64_t>()};
+    for_each_chunk(rows, [&](int64_t c, int64_t first, int64_t n) {
+      at::Tensor dh = at::zeros({n, H}, opt);
+      sparse_head::backward(layer, g_first[size_t(c)], g_first[size_t(c) + 1], dy.data_ptr<float>(),
+                            first, dh.data_ptr<float>(), dw2[c].data_ptr<float>(),
+                            db2[c].data_ptr<float>());
+      const at::Tensor hc = h.narrow(0, first, n), xc = x.narrow(0, first, n);
+      dh.masked_fill_(hc.le(0), 0);
+      at::Tensor part = dw1[c];
+      at::mm_out(part, dh.t(), xc);
+      part = db1[c];
+      at::sum_out(part, dh, 0);
+      if (x_grad) {
+        part = dx.narrow(0, first, n);
+        at::mm_out(part, dh, w1);
+      }
+    });
+    return {
+        dx,           sum_in_order(dw1), sum_in_order(db1), sum_in_order(dw2), sum_in_order(db2),
+        at::Tensor(), at::Tensor(),      at::Tensor()};
+  }
+};
+
 }  // namespace
+
+torch::Tensor sparse_mlp(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1,
+                         const torch::Tensor& w2, const torch::Tensor& b2, const torch::Tensor& row,
+                         const torch::Tensor& slot, int64_t outputs_per_slot) {
+  const int64_t O = outputs_per_slot;
+  TORCH_CHECK(x.scalar_type() == at::kFloat && w1.scalar_type() == at::kFloat &&
+                  w2.scalar_type() == at::kFloat && b1.scalar_type() == at::kFloat &&
+                  b2.scalar_type() == at::kFloat,
+              "sparse_mlp: float tensors only");
+  TORCH_CHECK(x.dim() == 2 && w1.dim() == 2 && w2.dim() == 2 && x.size(1) == w1.size(1) &&
+                  w2.size(1) == w1.size(0) && b1.numel() == w1.size(0) &&
+                  b2.numel() == w2.size(0) && O >= 1 && O <= sparse_head::kLanes &&
+                  w2.size(0) % O == 0,
+              "sparse_mlp: shapes do not chain (x ", x.sizes(), ", w1 ", w1.sizes(), ", w2 ",
+              w2.sizes(), ", ", O, " outputs per slot)");
+  TORCH_CHECK(row.dim() == 1 && slot.dim() == 1 && row.numel() == slot.numel() &&
+                  row.scalar_type() == at::kLong && slot.scalar_type() == at::kLong &&
+                  row.is_contiguous() && slot.is_contiguous(),
+              "sparse_mlp: row and slot must be contiguous 1-D long tensors of one length");
+  const int64_t n = row.numel();
+  if (n > 0) {
+    TORCH_CHECK(row.min().item<int64_t>() >= 0 && row.max().item<int64_t>() < x.size(0) &&
+                    slot.min().item<int64_t>() >= 0 && slot.max().item<int64_t>() < w2.size(0) / O,
+                "sparse_mlp: a row or slot is out of range");
+    TORCH_CHECK(n < 2 || row.narrow(0, 1, n - 1).ge(row.narrow(0, 0, n - 1)).all().item<bool>(),
+                "sparse_mlp: the rows decrease");
+  }
+  if (torch::GradMode::is_enabled() &&
+      (x.requires_grad() || w1.requires_grad() || b1.requires_grad() || w2.requires_grad() ||
+       b2.requires_grad()))
+    return SparseMlp::apply(x, w1, b1, w2, b2, row, slot, O);
+  // Detached: grad mode is per thread, and the pool's threads have it on.
+  return sparse_forward(x.detach().contiguous(), w1.detach(), b1.detach(), w2.detach().contiguous(),
+                        b2.detach(), row, slot, O)
+      .second;
+}
 
 torch::Tensor chunked_mlp(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1,
                           const torch::Tensor& w2, const torch::Tensor& b2) {

@@ -1,0 +1,59 @@
+/// @file sparse_head_kernels.cpp
+/// @brief The per-Gaussian output layer, compiled for x86-64-v4, x86-64-v3 and baseline x86-64
+/// (target_clones): a Gaussian's O outputs are one 8-lane vector accumulated over the hidden
+/// units; the backward's loops over the hidden units vectorise as they are.
+#include "model/sparse_head_kernels.h"
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define CRPGS_TARGET_CLONES \
+  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#else
+#define CRPGS_TARGET_CLONES
+#endif
+
+namespace crpgs::sparse_head {
+namespace {
+typedef float vf __attribute__((vector_size(kLanes * sizeof(float))));
+}  // namespace
+
+CRPGS_TARGET_CLONES
+void forward(const Layer& l, int64_t g_begin, int64_t g_end, float* y) {
+  const int64_t H = l.H;
+  const int O = l.O;
+  for (int64_t g = g_begin; g < g_end; ++g) {
+    const int64_t s = l.slot[g];
+    const float* h = l.h + l.row[g] * H;
+    const float* w = l.w2_lanes + s * H * kLanes;
+    vf acc{};
+    for (int64_t k = 0; k < H; ++k) {
+      vf wk;
+      __builtin_memcpy(&wk, w + k * kLanes, sizeof(vf));
+      acc += h[k] * wk;
+    }
+    float* out = y + g * O;
+    for (int o = 0; o < O; ++o) out[o] = acc[o] + l.b2[s * O + o];
+  }
+}
+
+CRPGS_TARGET_CLONES
+void backward(const Layer& l, int64_t g_begin, int64_t g_end, const float* dy, int64_t first_row,
+              float* dh, float* dw2, float* db2) {
+  const int64_t H = l.H;
+  const int O = l.O;
+  for (int64_t g = g_begin; g < g_end; ++g) {
+    const int64_t s = l.slot[g];
+    const float* h = l.h + l.row[g] * H;
+    float* dhr = dh + (l.row[g] - first_row) * H;
+    for (int o = 0; o < O; ++o) {
+      const float d = dy[g * O + o];
+      const int64_t r = s * O + o;
+      const float* w = l.w2 + r * H;
+      float* dw = dw2 + r * H;
+      for (int64_t k = 0; k < H; ++k) dhr[k] += d * w[k];
+      for (int64_t k = 0; k < H; ++k) dw[k] += d * h[k];
+      db2[r] += d;
+    }
+  }
+}
+
+}  // namespace crpgs::sparse_head
