@@ -58,6 +58,16 @@ at::Tensor sum_in_order(const at::Tensor& parts) {
   return total;
 }
 
+// A chunk's backward through ReLU and the first layer, from dh (the gradient of the ReLU's
+// output h, overwritten): its partial dw1 and db1, and its rows of dx where dx is defined.
+void first_layer_backward(at::Tensor& dh, const at::Tensor& h, const at::Tensor& x,
+                          const at::Tensor& w1, at::Tensor dw1, at::Tensor db1, at::Tensor dx) {
+  dh.masked_fill_(h.le(0), 0);  // h > 0 exactly where the ReLU passed its input
+  at::mm_out(dw1, dh.t(), x);
+  at::sum_out(db1, dh, 0);
+  if (dx.defined()) at::mm_out(dx, dh, w1);
+}
+
 struct ChunkedMlp : public torch::autograd::Function<ChunkedMlp> {
   static at::Tensor forward(AutogradContext* ctx, const at::Tensor& x, const at::Tensor& w1,
                             const at::Tensor& b1, const at::Tensor& w2, const at::Tensor& b2) {
@@ -92,15 +102,8 @@ struct ChunkedMlp : public torch::autograd::Function<ChunkedMlp> {
       part = db2[c];
       at::sum_out(part, dyc, 0);
       at::Tensor dh = at::mm(dyc, w2);
-      dh.masked_fill_(hc.le(0), 0);  // ReLU: h is its output, > 0 exactly where it passed
-      part = dw1[c];
-      at::mm_out(part, dh.t(), xc);
-      part = db1[c];
-      at::sum_out(part, dh, 0);
-      if (dx.defined()) {
-        part = dx.narrow(0, first, n);
-        at::mm_out(part, dh, w1);
-      }
+      first_layer_backward(dh, hc, xc, w1, dw1[c], db1[c],
+                           dx.defined() ? dx.narrow(0, first, n) : at::Tensor());
     });
     return {dx, sum_in_order(dw1), sum_in_order(db1), sum_in_order(dw2), sum_in_order(db2)};
   }
@@ -194,15 +197,8 @@ struct SparseMlp : public torch::autograd::Function<SparseMlp> {
                             first, dh.data_ptr<float>(), dw2[c].data_ptr<float>(),
                             db2[c].data_ptr<float>());
       const at::Tensor hc = h.narrow(0, first, n), xc = x.narrow(0, first, n);
-      dh.masked_fill_(hc.le(0), 0);
-      at::Tensor part = dw1[c];
-      at::mm_out(part, dh.t(), xc);
-      part = db1[c];
-      at::sum_out(part, dh, 0);
-      if (x_grad) {
-        part = dx.narrow(0, first, n);
-        at::mm_out(part, dh, w1);
-      }
+      first_layer_backward(dh, hc, xc, w1, dw1[c], db1[c],
+                           x_grad ? dx.narrow(0, first, n) : at::Tensor());
     });
     return {
         dx,           sum_in_order(dw1), sum_in_order(db1), sum_in_order(dw2), sum_in_order(db2),
