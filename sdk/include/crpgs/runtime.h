@@ -28,7 +28,8 @@ class ScopedComputeThreads {
 };
 
 /// OpenBLAS on one thread for a scope, for code that runs independent GEMMs in parallel itself
-/// (OpenBLAS runs a call with one thread in the calling thread). Restores the count.
+/// (OpenBLAS runs a call with one thread in the calling thread). Restores the count. The setting
+/// is process-wide: other threads' GEMMs in the scope also run on one thread.
 class SingleThreadedBlas {
  public:
   SingleThreadedBlas();

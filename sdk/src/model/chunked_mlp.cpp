@@ -212,6 +212,8 @@ torch::Tensor sparse_mlp(const torch::Tensor& x, const torch::Tensor& w1, const 
                          const torch::Tensor& w2, const torch::Tensor& b2, const torch::Tensor& row,
                          const torch::Tensor& slot, int64_t outputs_per_slot) {
   const int64_t O = outputs_per_slot;
+  for (const auto* t : {&x, &w1, &b1, &w2, &b2, &row, &slot})
+    TORCH_CHECK(t->device().is_cpu(), "sparse_mlp: CPU tensors only");
   TORCH_CHECK(x.scalar_type() == at::kFloat && w1.scalar_type() == at::kFloat &&
                   w2.scalar_type() == at::kFloat && b1.scalar_type() == at::kFloat &&
                   b2.scalar_type() == at::kFloat,

@@ -17,8 +17,8 @@ torch::Tensor chunked_mlp(const torch::Tensor& x, const torch::Tensor& w1, const
 /// The same MLP where only some of each row's outputs are wanted: w2 [K*O, H] holds K slots of
 /// O outputs, and Gaussian g wants slot slot[g] of row row[g] (row non-decreasing). Returns
 /// [G, O] = mlp(x)[row[g], slot[g]*O : slot[g]*O + O], computing only those outputs: colour and
-/// covariance keep ~a quarter of the slots of the anchors they are computed for. Float only;
-/// O <= 8.
+/// covariance keep ~a quarter of the slots of the anchors they are computed for. Float CPU
+/// tensors; O <= 8.
 torch::Tensor sparse_mlp(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1,
                          const torch::Tensor& w2, const torch::Tensor& b2, const torch::Tensor& row,
                          const torch::Tensor& slot, int64_t outputs_per_slot);
