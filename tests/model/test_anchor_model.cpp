@@ -103,10 +103,14 @@ TEST(ChunkedMlp, SameValuesAndGradientsAsLibtorch) {
       EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-12, 1e-12)) << "rows " << rows << " " << i;
     }
   }
-  // An input that needs no gradient gets none; without autograd only the forward runs, also
-  // with parameters that require gradients and chunks on several threads.
+  // With an input that needs no gradient the weights' gradients are the same; without autograd
+  // only the forward runs, also with parameters that require gradients and chunks on several
+  // threads.
   auto in = random_mlp(5000, torch::kFloat);
-  EXPECT_FALSE(mlp_and_grads(in, torch::ones({5000, 4}), true, false)[1].defined());
+  auto up = torch::randn({5000, 4});
+  auto ref = mlp_and_grads(in, up, false, false), got = mlp_and_grads(in, up, true, false);
+  for (size_t i = 2; i < ref.size(); ++i)
+    EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-4, 1e-4)) << "tensor " << i;
   for (size_t i = 1; i < in.size(); ++i) in[i].requires_grad_(true);
   const int threads = at::get_num_threads();
   at::set_num_threads(2);
@@ -139,9 +143,11 @@ TEST(ChunkedMlp, RefusesShapesThatDoNotChain) {
 // sparse_mlp's output and gradients (of sum(upstream * y)), or the dense MLP's selected rows.
 std::vector<torch::Tensor> sparse_and_grads(const std::vector<torch::Tensor>& in0,
                                             const torch::Tensor& row, const torch::Tensor& slot,
-                                            int64_t O, const torch::Tensor& upstream, bool sparse) {
+                                            int64_t O, const torch::Tensor& upstream, bool sparse,
+                                            bool x_grad = true) {
   std::vector<torch::Tensor> in;
-  for (const auto& t : in0) in.push_back(t.clone().requires_grad_(true));
+  for (size_t i = 0; i < in0.size(); ++i)
+    in.push_back(in0[i].clone().requires_grad_(i > 0 || x_grad));
   const int64_t K = in[3].size(0) / O;
   auto y = sparse ? sparse_mlp(in[0], in[1], in[2], in[3], in[4], row, slot, O)
                   : torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4])
@@ -185,8 +191,14 @@ TEST(SparseMlp, SameValuesAndGradientsAsTheDenseMlpsSelectedOutputs) {
             << (got[i] - ref[i]).abs().max().item<float>();
       }
     }
-  // Without autograd, on two threads, with parameters that require gradients.
+  // An input that needs no gradient: the same weight gradients.
   SparseCase c(3000, 7);
+  auto up = torch::randn({c.row.numel(), 7});
+  auto ref = sparse_and_grads(c.in, c.row, c.slot, 7, up, false, false);
+  auto got = sparse_and_grads(c.in, c.row, c.slot, 7, up, true, false);
+  for (size_t i = 2; i < ref.size(); ++i)
+    EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-4, 1e-4)) << "tensor " << i;
+  // Without autograd, on two threads, with parameters that require gradients.
   for (size_t i = 1; i < c.in.size(); ++i) c.in[i].requires_grad_(true);
   const int threads = at::get_num_threads();
   at::set_num_threads(2);
@@ -221,11 +233,11 @@ TEST(SparseMlp, RefusesRowsAndSlotsItCannotUse) {
                torch::tensor(slot, torch::kLong), O);
   };
   EXPECT_NO_THROW(call({0, 1, 3}, {0, 9, 2}));
-  EXPECT_THROW(call({1, 0}, {0, 0}), c10::Error);     // decreasing rows
-  EXPECT_THROW(call({0, 4}, {0, 0}), c10::Error);     // row out of range
-  EXPECT_THROW(call({0, 1}, {0, 10}), c10::Error);    // slot out of range
-  EXPECT_THROW(call({0, 1}, {0}), c10::Error);        // lengths differ
-  EXPECT_THROW(call({0, 1}, {0, 0}, 9), c10::Error);  // more outputs than lanes
+  EXPECT_THROW(call({1, 0}, {0, 0}), c10::Error);      // decreasing rows
+  EXPECT_THROW(call({0, 4}, {0, 0}), c10::Error);      // row out of range
+  EXPECT_THROW(call({0, 1}, {0, 10}), c10::Error);     // slot out of range
+  EXPECT_THROW(call({0, 1}, {0}), c10::Error);         // lengths differ
+  EXPECT_THROW(call({0, 1}, {0, 0}, 10), c10::Error);  // more outputs than lanes (30 = 3 x 10)
 }
 
 TEST(GatherSortedRows, RefusesAnIndexItsBackwardCannotUse) {

@@ -401,6 +401,12 @@ TEST(Trainer, CheckpointsAlsoAfterTheConfiguredMinutes) {
   Recorder off;
   ASSERT_TRUE(trainer(ds, to)->train(&off).ok());
   EXPECT_EQ(off.checkpoints.size(), 1u);
+  // Not yet due: minutes, not seconds (the run takes seconds).
+  to.checkpoint_minutes = 0.5;
+  to.output_dir = tmp_dir("by_time_later");
+  Recorder later;
+  ASSERT_TRUE(trainer(ds, to)->train(&later).ok());
+  EXPECT_EQ(later.checkpoints.size(), 1u);
 }
 
 TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {

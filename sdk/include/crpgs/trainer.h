@@ -57,11 +57,11 @@ struct TrainOptions {
   double lambda_dssim = 0.2;
   double lambda_scaling = 0.01;
   int eval_interval = 1000;        ///< held-out PSNR every N iterations; 0 = never
-  int checkpoint_interval = 5000;  ///< 0 = only on request / at the end
+  int checkpoint_interval = 5000;  ///< 0 = only on request / at the end (and by minutes)
   /// Also checkpoint when this many minutes of training passed since the last one (a 4k-iteration
   /// run never reaches checkpoint_interval; a machine reset should not lose an hour); 0 = off.
   double checkpoint_minutes = 15;
-  int threads = 0;                 ///< at::set_num_threads; 0 = all cores
+  int threads = 0;  ///< at::set_num_threads; 0 = all cores
   /// Non-finite iterations in a row whose updates are discarded before rolling back to the last
   /// good state (the last checkpoint, kept in memory), and roll-backs before giving up.
   int max_skipped_steps = 5;

@@ -1061,11 +1061,15 @@ namespace {
 // elements: the unfused form made seven passes over every moment and parameter tensor.
 void adam_update(torch::Tensor& param, const torch::Tensor& grad, torch::Tensor& m,
                  torch::Tensor& v, double lr, int64_t step) {
+  TORCH_CHECK(
+      grad.numel() == param.numel() && m.numel() == param.numel() && v.numel() == param.numel(),
+      "Adam: gradient or moments do not match the parameter's ", param.numel(), " elements");
   const double bc1 = 1 - std::pow(kAdamBeta1, double(step));
   const double bc2 = 1 - std::pow(kAdamBeta2, double(step));
   const bool flat = param.scalar_type() == at::kFloat && param.is_contiguous() &&
-                    grad.scalar_type() == at::kFloat && grad.is_contiguous() && m.is_contiguous() &&
-                    v.is_contiguous();
+                    grad.scalar_type() == at::kFloat && grad.is_contiguous() &&
+                    m.scalar_type() == at::kFloat && m.is_contiguous() &&
+                    v.scalar_type() == at::kFloat && v.is_contiguous();
   if (!flat) {
     m.mul_(kAdamBeta1).add_(grad, 1 - kAdamBeta1);
     v.mul_(kAdamBeta2).addcmul_(grad, grad, 1 - kAdamBeta2);

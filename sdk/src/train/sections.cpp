@@ -124,11 +124,13 @@ const std::vector<CoreSection>& core_sections() {
                    "held-out PSNR every N iterations; 0 = never"),
                  0, 1e8),
            range(P("checkpoint_interval", T::kInt, YAML::Node(5000),
-                   "checkpoint every N iterations; 0 = only at the end / on request"),
+                   "checkpoint every N iterations; 0 = only at the end / on request (and by "
+                   "checkpoint_minutes)"),
                  0, 1e8),
-           range(P("checkpoint_minutes", T::kFloat, YAML::Node(15),
-                   "also checkpoint after this many minutes of training since the last one; 0 = off"),
-                 0, 1e6),
+           range(
+               P("checkpoint_minutes", T::kFloat, YAML::Node(15),
+                 "also checkpoint after this many minutes of training since the last one; 0 = off"),
+               0, 1e6),
            range(P("threads", T::kInt, YAML::Node(0), "CPU threads; 0 = all cores"), 0, 1024),
            range(P("lr_offset", T::kFloat, YAML::Node(0.01), "offset lr (x spatial scale)"), 0, 10),
            range(P("lr_offset_final", T::kFloat, YAML::Node(0.0001), "final offset lr"), 0, 10),
