@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
+#include <vector>
 
 #include "crpgs/schema.h"
 #include "raster/raster_test_util.h"
@@ -356,6 +358,48 @@ TEST(RasterStages, IntersectListsEveryOverlapSortedByDepth) {
           dep[ids[k - 1]] < dep[ids[k]] || (dep[ids[k - 1]] == dep[ids[k]] && ids[k - 1] < ids[k]);
       EXPECT_TRUE(ordered) << "tile " << t << " entry " << k;
     }
+  }
+}
+
+// Enough Gaussians that the fill runs in two ranges, many equal depths (ties go by index),
+// negative and zero depths, and culled ones: every tile's list equals a sort by (depth, index).
+TEST(RasterStages, IntersectOrderHoldsForTiesNegativeDepthsAndTwoRanges) {
+  constexpr int64_t n = 20000;
+  constexpr int W = 96, H = 64;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> U(0.f, 1.f);
+  at::Tensor m2 = at::empty({n, 2}), dep = at::empty({n});
+  at::Tensor rad = at::empty({n}, at::kInt);
+  auto m = m2.accessor<float, 2>();
+  auto d = dep.accessor<float, 1>();
+  auto r = rad.accessor<int32_t, 1>();
+  for (int64_t i = 0; i < n; ++i) {
+    m[i][0] = -10.f + (W + 20) * U(rng);
+    m[i][1] = -10.f + (H + 20) * U(rng);
+    d[i] = float(int(U(rng) * 40) - 5) * 0.25f;  // 40 values from -1.25 to 8.5, zero included
+    r[i] = U(rng) < 0.1f ? 0 : 1 + int(U(rng) * 20);
+  }
+  auto off_of = [](const TileIntersections& is) {
+    return std::vector<int32_t>(is.tile_offsets.data_ptr<int32_t>(),
+                                is.tile_offsets.data_ptr<int32_t>() + is.tile_offsets.numel());
+  };
+  const TileIntersections one = intersect_tiles(m2, rad, dep, W, H, 1);
+  const TileIntersections two = intersect_tiles(m2, rad, dep, W, H, 2);
+  EXPECT_TRUE(at::equal(one.tile_offsets, two.tile_offsets));
+  EXPECT_TRUE(at::equal(one.gaussian_ids, two.gaussian_ids));
+  std::vector<std::vector<int32_t>> expected(size_t(one.tiles_x * one.tiles_y));
+  for (int64_t i = 0; i < n; ++i) {
+    if (r[i] <= 0) continue;
+    const TileRect t = tile_rect(m[i][0], m[i][1], r[i], one.tiles_x, one.tiles_y);
+    for (int ty = t.y0; ty < t.y1; ++ty)
+      for (int tx = t.x0; tx < t.x1; ++tx) expected[size_t(ty * one.tiles_x + tx)].push_back(int32_t(i));
+  }
+  const std::vector<int32_t> off = off_of(two);
+  const int32_t* ids = two.gaussian_ids.data_ptr<int32_t>();
+  for (size_t t = 0; t < expected.size(); ++t) {
+    std::vector<int32_t>& e = expected[t];
+    std::stable_sort(e.begin(), e.end(), [&](int32_t a, int32_t b) { return d[a] < d[b]; });
+    ASSERT_EQ(std::vector<int32_t>(ids + off[t], ids + off[t + 1]), e) << "tile " << t;
   }
 }
 

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <limits>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -185,6 +186,42 @@ kernels::TileInputs tile_inputs(const std::vector<Packed>& gs, const TileInterse
   for (int k = 0; k < 3; ++k) in.bg[k] = bg[k];
   in.depth = depth;
   return in;
+}
+
+// Indices of the Gaussians with a non-empty tile rectangle, sorted by (depth, index): a stable
+// LSD radix sort on the depth's bits mapped to an unsigned order (negative depths included).
+std::vector<int32_t> depth_order(const float* depth, const std::vector<TileRect>& rects) {
+  std::vector<int32_t> idx;
+  std::vector<uint32_t> key;
+  idx.reserve(rects.size());
+  key.reserve(rects.size());
+  for (size_t i = 0; i < rects.size(); ++i) {
+    const TileRect& r = rects[i];
+    if (r.x1 <= r.x0 || r.y1 <= r.y0) continue;
+    uint32_t bits;
+    std::memcpy(&bits, &depth[i], sizeof(bits));
+    idx.push_back(int32_t(i));
+    key.push_back(bits & 0x80000000u ? ~bits : bits | 0x80000000u);
+  }
+  constexpr int kDigitBits = 11, kBuckets = 1 << kDigitBits;
+  std::vector<int32_t> idx_tmp(idx.size());
+  std::vector<uint32_t> key_tmp(key.size());
+  std::vector<size_t> start(kBuckets);
+  for (int shift = 0; shift < 32; shift += kDigitBits) {
+    std::fill(start.begin(), start.end(), size_t(0));
+    for (uint32_t k : key) ++start[(k >> shift) & (kBuckets - 1)];
+    if (start[(key.empty() ? 0 : key[0] >> shift) & (kBuckets - 1)] == key.size()) continue;
+    size_t sum = 0;
+    for (size_t& s : start) sum += std::exchange(s, sum);
+    for (size_t j = 0; j < key.size(); ++j) {
+      const size_t to = start[(key[j] >> shift) & (kBuckets - 1)]++;
+      key_tmp[to] = key[j];
+      idx_tmp[to] = idx[j];
+    }
+    key.swap(key_tmp);
+    idx.swap(idx_tmp);
+  }
+  return idx;
 }
 
 }  // namespace
@@ -366,19 +403,26 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
   const float* m2 = means2d.data_ptr<float>();
   const int32_t* rad = radii.data_ptr<int32_t>();
   const float* dep = depths.data_ptr<float>();
-  // Gaussians in `parts` contiguous ranges: counts per (range, tile), offsets tile-major then
-  // range-minor, and a fill in Gaussian order; the per-tile sort below fixes the final order.
-  const int parts = int(std::max<int64_t>(1, std::min<int64_t>(threads, n / 4096)));
-  auto part_begin = [&](int64_t p) { return n * p / parts; };
+  // The Gaussians that touch a tile, front to back: (depth, index) order, so that filling the
+  // tiles in that order leaves every tile's list sorted.
   std::vector<TileRect> rects(static_cast<size_t>(n));
+  parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      rects[i] = rad[i] > 0 ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
+                            : TileRect{0, 0, 0, 0};
+    }
+  });
+  const std::vector<int32_t> front_to_back = depth_order(dep, rects);
+  const int64_t n_drawn = int64_t(front_to_back.size());
+  // That order in `parts` contiguous ranges: counts per (range, tile), offsets tile-major then
+  // range-minor, and each range fills its own slots of every tile.
+  const int parts = int(std::max<int64_t>(1, std::min<int64_t>(threads, n_drawn / 4096)));
+  auto part_begin = [&](int64_t p) { return n_drawn * p / parts; };
   std::vector<int64_t> counts(static_cast<size_t>(parts) * n_tiles, 0);
   parallel_items(parts, threads, [&](int64_t p) {
     int64_t* c = counts.data() + p * n_tiles;
-    for (int64_t i = part_begin(p); i < part_begin(p + 1); ++i) {
-      const TileRect r = rad[i] > 0
-                             ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
-                             : TileRect{0, 0, 0, 0};
-      rects[i] = r;
+    for (int64_t k = part_begin(p); k < part_begin(p + 1); ++k) {
+      const TileRect& r = rects[size_t(front_to_back[size_t(k)])];
       for (int ty = r.y0; ty < r.y1; ++ty)
         for (int tx = r.x0; tx < r.x1; ++tx) ++c[ty * out.tiles_x + tx];
     }
@@ -403,24 +447,12 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
   int32_t* ids = out.gaussian_ids.data_ptr<int32_t>();
   parallel_items(parts, threads, [&](int64_t p) {
     int64_t* cur = cursor.data() + p * n_tiles;
-    for (int64_t i = part_begin(p); i < part_begin(p + 1); ++i) {
-      const TileRect& r = rects[i];
+    for (int64_t k = part_begin(p); k < part_begin(p + 1); ++k) {
+      const int32_t i = front_to_back[size_t(k)];
+      const TileRect& r = rects[size_t(i)];
       for (int ty = r.y0; ty < r.y1; ++ty)
-        for (int tx = r.x0; tx < r.x1; ++tx) ids[cur[ty * out.tiles_x + tx]++] = int32_t(i);
+        for (int tx = r.x0; tx < r.x1; ++tx) ids[cur[ty * out.tiles_x + tx]++] = i;
     }
-  });
-  // Sort each tile by (depth, index): depths are positive, so their bits order as integers.
-  parallel_items(n_tiles, threads, [&](int64_t t) {
-    const int32_t b = off[t], e = off[t + 1];
-    if (e - b < 2) return;
-    std::vector<uint64_t> keys(static_cast<size_t>(e - b));
-    for (int32_t k = b; k < e; ++k) {
-      uint32_t bits;
-      std::memcpy(&bits, &dep[ids[k]], sizeof(bits));
-      keys[k - b] = (uint64_t(bits) << 32) | uint32_t(ids[k]);
-    }
-    std::sort(keys.begin(), keys.end());
-    for (int32_t k = b; k < e; ++k) ids[k] = int32_t(keys[k - b] & 0xffffffffu);
   });
   return out;
 }
