@@ -392,7 +392,8 @@ TEST(RasterStages, IntersectOrderHoldsForTiesNegativeDepthsAndTwoRanges) {
     if (r[i] <= 0) continue;
     const TileRect t = tile_rect(m[i][0], m[i][1], r[i], one.tiles_x, one.tiles_y);
     for (int ty = t.y0; ty < t.y1; ++ty)
-      for (int tx = t.x0; tx < t.x1; ++tx) expected[size_t(ty * one.tiles_x + tx)].push_back(int32_t(i));
+      for (int tx = t.x0; tx < t.x1; ++tx)
+        expected[size_t(ty * one.tiles_x + tx)].push_back(int32_t(i));
   }
   const std::vector<int32_t> off = off_of(two);
   const int32_t* ids = two.gaussian_ids.data_ptr<int32_t>();
