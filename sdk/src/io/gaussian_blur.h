@@ -76,4 +76,11 @@ void blur_columns(const T* in, T* out, int64_t y0, int64_t y1, int64_t height, i
   }
 }
 
+/// The two float passes with the window's taps, compiled for several instruction sets (the
+/// training loss's hot loops; gaussian_blur.cpp). Same results as the templates above.
+void blur_rows_f32(const float* in, float* out, int64_t y0, int64_t y1, int64_t width,
+                   int64_t channels);
+void blur_columns_f32(const float* in, float* out, int64_t y0, int64_t y1, int64_t height,
+                      int64_t len);
+
 }  // namespace crpgs::ssim_window

@@ -4,12 +4,7 @@
 /// units; the backward's loops over the hidden units vectorise as they are.
 #include "model/sparse_head_kernels.h"
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
-#define CRPGS_TARGET_CLONES \
-  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
-#else
-#define CRPGS_TARGET_CLONES
-#endif
+#include "core/target_clones.h"
 
 namespace crpgs::sparse_head {
 namespace {

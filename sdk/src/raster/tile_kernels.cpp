@@ -1,22 +1,18 @@
 // Pixel loops of the tile rasterizer. A tile is 16 rows of two 8-pixel chunks; each Gaussian
 // of the tile's list is applied to the chunks its alpha >= 1/255 ellipse reaches, 8 pixels at a
 // time in GCC vector types, branch-free with lane masks. The same inline code is compiled for
-// x86-64-v4, AVX2 and baseline x86-64 (target_clones; the baseline clone is slow, GCC splits the
-// 8-lane code there); all do the same IEEE operations in the same order (no FMA contraction), so
-// the results do not depend on which clone runs.
+// x86-64-v4, x86-64-v3 (AVX2) and baseline x86-64 (target_clones; the baseline clone is slow, GCC
+// splits the 8-lane code there); all do the same IEEE operations in the same order (no FMA
+// contraction), so the results do not depend on which clone runs.
 #include "raster/tile_kernels.h"
 
 #include <algorithm>
 #include <cmath>
 #include <vector>
 
+#include "core/target_clones.h"
 #include "raster/constants.h"
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
-#define CRPGS_TARGET_CLONES __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
-#else
-#define CRPGS_TARGET_CLONES
-#endif
 #define CRPGS_INLINE inline __attribute__((always_inline))
 #define CRPGS_LAMBDA_INLINE __attribute__((always_inline))
 

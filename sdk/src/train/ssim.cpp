@@ -22,11 +22,10 @@ constexpr int64_t kPixelGrain = 1 << 14;  // values per task in the element-wise
 
 /// The SSIM window over an [H, W, C] image (channels interleaved). `tmp`: H*W*C scratch.
 void blur(const float* in, float* out, float* tmp, int64_t H, int64_t W, int64_t C) {
-  static const auto g = sw::taps<float>();
   at::parallel_for(0, H, kRowGrain,
-                   [&](int64_t b, int64_t e) { sw::blur_rows(in, tmp, b, e, W, C, g); });
+                   [&](int64_t b, int64_t e) { sw::blur_rows_f32(in, tmp, b, e, W, C); });
   at::parallel_for(0, H, kRowGrain,
-                   [&](int64_t b, int64_t e) { sw::blur_columns(tmp, out, b, e, H, W * C, g); });
+                   [&](int64_t b, int64_t e) { sw::blur_columns_f32(tmp, out, b, e, H, W * C); });
 }
 
 struct SsimFunction : public torch::autograd::Function<SsimFunction> {
