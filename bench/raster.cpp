@@ -265,8 +265,8 @@ void BM_Stages(benchmark::State& state) {
     const r::ProjectResult pr =
         r::project_forward(g.means, g.scales, g.rotations, cam, st, threads);
     const auto t1 = clock::now();
-    const r::TileIntersections is =
-        r::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, threads);
+    const r::TileIntersections is = r::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width,
+                                                       cam.height, threads, pr.conics, g.opacities);
     const auto t2 = clock::now();
     const r::RasterizeResult rr =
         r::rasterize_forward(pr.means2d, pr.conics, g.opacities, g.colors, pr.depths, is, cam.width,

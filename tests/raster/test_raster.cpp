@@ -404,6 +404,54 @@ TEST(RasterStages, IntersectOrderHoldsForTiesNegativeDepthsAndTwoRanges) {
   }
 }
 
+// Tiles where a Gaussian's alpha cannot reach 1/255 are left out of its list: fewer entries,
+// the same image, alpha, depth and gradients (the pixel loops skipped those entries anyway).
+TEST(RasterStages, AlphaBoxesDropOnlyEntriesThatDrawNothing) {
+  const Camera cam = make_camera(120, 90);
+  Scene s = random_scene(600, 131, cam, 6.0);
+  auto o = s.opacities.accessor<float, 1>();
+  for (int64_t i = 0; i < s.size(); i += 3) o[i] = 0.005f + 0.02f * float(i % 7);  // faint ones
+  const RenderSettings st = settings_with(true);
+  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, cam, st, 2);
+  const int W = cam.width, H = cam.height;
+  const TileIntersections loose = intersect_tiles(pr.means2d, pr.radii, pr.depths, W, H, 2);
+  const TileIntersections tight =
+      intersect_tiles(pr.means2d, pr.radii, pr.depths, W, H, 2, pr.conics, s.opacities);
+  EXPECT_LT(tight.gaussian_ids.numel(), loose.gaussian_ids.numel() * 9 / 10);
+  // Each tight list is the loose one with some entries removed, order kept.
+  for (int t = 0; t < loose.tiles_x * loose.tiles_y; ++t) {
+    const auto a = loose.gaussian_ids.slice(0, loose.tile_offsets[t].item<int>(),
+                                            loose.tile_offsets[t + 1].item<int>());
+    const auto b = tight.gaussian_ids.slice(0, tight.tile_offsets[t].item<int>(),
+                                            tight.tile_offsets[t + 1].item<int>());
+    int64_t j = 0;
+    for (int64_t k = 0; k < a.numel() && j < b.numel(); ++k)
+      j += a[k].item<int>() == b[j].item<int>() ? 1 : 0;
+    EXPECT_EQ(j, b.numel()) << "tile " << t;
+  }
+  auto render = [&](const TileIntersections& is) {
+    RasterizeResult rr = rasterize_forward(pr.means2d, pr.conics, s.opacities, s.colors, pr.depths,
+                                           is, W, H, st.background, true, 2);
+    at::manual_seed(5);
+    const at::Tensor vi = at::rand({H, W, 3}), va = at::rand({H, W, 1}), vd = at::rand({H, W, 1});
+    RasterizeGrads g = rasterize_backward(pr.means2d, pr.conics, s.opacities, s.colors, pr.depths,
+                                          is, rr, W, H, st.background, true, vi, va, vd, 2);
+    return std::make_pair(rr, g);
+  };
+  const auto [r0, g0] = render(loose);
+  const auto [r1, g1] = render(tight);
+  EXPECT_TRUE(at::equal(r0.image, r1.image));
+  EXPECT_TRUE(at::equal(r0.alpha, r1.alpha));
+  EXPECT_TRUE(at::equal(r0.depth, r1.depth));
+  EXPECT_TRUE(at::equal(r0.final_T, r1.final_T));
+  EXPECT_TRUE(at::equal(g0.v_means2d, g1.v_means2d));
+  EXPECT_TRUE(at::equal(g0.v_conics, g1.v_conics));
+  EXPECT_TRUE(at::equal(g0.v_opacities, g1.v_opacities));
+  EXPECT_TRUE(at::equal(g0.v_colors, g1.v_colors));
+  EXPECT_TRUE(at::equal(g0.v_depths, g1.v_depths));
+  EXPECT_GT(g0.v_opacities.abs().sum().item<float>(), 0.f);
+}
+
 // ---- Anchor prefilter and the component ------------------------------------------------
 
 TEST(RasterAnchors, VisibleAnchorsFollowFrustumAndRadius) {

@@ -93,8 +93,8 @@ struct RasterizeFunction : public torch::autograd::Function<RasterizeFunction> {
     const at::Tensor rotations = rotations_in.contiguous(), opac = opacities_in.contiguous();
     const at::Tensor colors = colors_in.contiguous();
     const ProjectResult pr = project_forward(means, scales, rotations, cam, s, nt);
-    const TileIntersections is =
-        intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, nt);
+    const TileIntersections is = intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width,
+                                                 cam.height, nt, pr.conics, opac);
     const RasterizeResult rr =
         rasterize_forward(pr.means2d, pr.conics, opac, colors, pr.depths, is, cam.width, cam.height,
                           s.background, s.render_depth, nt);

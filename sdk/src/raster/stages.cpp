@@ -188,6 +188,23 @@ kernels::TileInputs tile_inputs(const std::vector<Packed>& gs, const TileInterse
   return in;
 }
 
+// Tiles holding a pixel whose centre lies in the Gaussian's alpha >= 1/255 box (the pixel
+// loops' own test, pixel_range, in the same float arithmetic); empty when there is none.
+TileRect alpha_tile_rect(const float* m2, const float* con, float op, int tiles_x, int tiles_y) {
+  float ex, ey;
+  kernels::alpha_extent(con, op, ex, ey);
+  if (ex < 0) return TileRect{0, 0, 0, 0};
+  const float fx0 = std::ceil(m2[0] - ex - 0.5f), fx1 = std::floor(m2[0] + ex - 0.5f);
+  const float fy0 = std::ceil(m2[1] - ey - 0.5f), fy1 = std::floor(m2[1] + ey - 0.5f);
+  if (!(fx1 >= fx0 && fy1 >= fy0)) return TileRect{0, 0, 0, 0};
+  // First tile of a pixel coordinate, and one past the last, clamped to [0, tiles].
+  auto tile = [](float p, int tiles, int past) {
+    return int(std::min<double>(tiles, std::max(0.0, std::floor(double(p) / kTileSize) + past)));
+  };
+  return TileRect{tile(fx0, tiles_x, 0), tile(fy0, tiles_y, 0), tile(fx1, tiles_x, 1),
+                  tile(fy1, tiles_y, 1)};
+}
+
 // Indices of the Gaussians with a non-empty tile rectangle, sorted by (depth, index): a stable
 // LSD radix sort on the depth's bits mapped to an unsigned order (negative depths included).
 std::vector<int32_t> depth_order(const float* depth, const std::vector<TileRect>& rects) {
@@ -390,9 +407,17 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
 }
 
 TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& radii,
-                                  const at::Tensor& depths, int width, int height, int threads) {
+                                  const at::Tensor& depths, int width, int height, int threads,
+                                  const at::Tensor& conics, const at::Tensor& opacities) {
   check_float(means2d, "means2d", 2);
   check_float(depths, "depths", 0);
+  TORCH_CHECK(conics.defined() == opacities.defined(),
+              "rasterizer: intersect_tiles takes both conics and opacities or neither");
+  const bool alpha_boxes = conics.defined();
+  if (alpha_boxes) {
+    check_float(conics, "conics", 3);
+    check_float(opacities, "opacities", 0);
+  }
   TORCH_CHECK(radii.scalar_type() == at::kInt && radii.is_contiguous(),
               "rasterizer: radii must be contiguous int32");
   const int64_t n = means2d.size(0);
@@ -406,10 +431,22 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
   // The Gaussians that touch a tile, front to back: (depth, index) order, so that filling the
   // tiles in that order leaves every tile's list sorted.
   std::vector<TileRect> rects(static_cast<size_t>(n));
+  const float* con = alpha_boxes ? conics.data_ptr<float>() : nullptr;
+  const float* op = alpha_boxes ? opacities.data_ptr<float>() : nullptr;
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
     for (int64_t i = b; i < e; ++i) {
-      rects[i] = rad[i] > 0 ? tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y)
-                            : TileRect{0, 0, 0, 0};
+      if (rad[i] <= 0) {
+        rects[i] = TileRect{0, 0, 0, 0};
+        continue;
+      }
+      TileRect r = tile_rect(m2[2 * i], m2[2 * i + 1], rad[i], out.tiles_x, out.tiles_y);
+      if (alpha_boxes) {
+        const TileRect a =
+            alpha_tile_rect(m2 + 2 * i, con + 3 * i, op[i], out.tiles_x, out.tiles_y);
+        r = {std::max(r.x0, a.x0), std::max(r.y0, a.y0), std::min(r.x1, a.x1),
+             std::min(r.y1, a.y1)};
+      }
+      rects[i] = r;
     }
   });
   const std::vector<int32_t> front_to_back = depth_order(dep, rects);

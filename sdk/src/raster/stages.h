@@ -61,8 +61,12 @@ struct TileRect {
 };
 TileRect tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y);
 
+/// Every Gaussian with radius > 0 goes to the tiles of its tile_rect. Given its conic [N, 3] and
+/// opacity [N] as well, only to those of them where its alpha can reach 1/255 (the pixel loops
+/// would skip it in the others): the same image and gradients, fewer entries.
 TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& radii,
-                                  const at::Tensor& depths, int width, int height, int threads);
+                                  const at::Tensor& depths, int width, int height, int threads,
+                                  const at::Tensor& conics = {}, const at::Tensor& opacities = {});
 
 struct RasterizeResult {
   at::Tensor image;         // [H, W, 3] colour including background

@@ -19,6 +19,10 @@ struct alignas(64) Packed {
 /// m2 [2], con [3] (conic a, b, c), col [3].
 Packed pack_one(const float* m2, const float* con, float op, const float* col, float depth);
 
+/// The half-extents ex, ey of Packed for a conic and opacity (ex < 0: alpha never reaches
+/// 1/255). A pixel x takes part only if |x + 0.5 - mx| <= ex, and likewise in y.
+void alpha_extent(const float* con, float op, float& ex, float& ey);
+
 /// Read-only inputs shared by every tile.
 struct TileInputs {
   const Packed* gs;        // [N]
