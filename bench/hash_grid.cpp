@@ -1,12 +1,14 @@
 // Benchmarks of the binary hash grid (HAC layout, 96 outputs) on 100k uniformly random points:
-// CPU kernel forward and backward at 1 and 2 threads, and the ATen reference forward for the
-// speed-up. Results are recorded by hand in bench/results/hash_grid.md.
+// CPU kernel forward and backward at 1 and 2 threads, the ATen reference forward for the
+// speed-up, and the table's rate term B_h (forward + backward, paid once per grid and training
+// iteration in the rate phase). Results are recorded by hand in bench/results/hash_grid.md.
 #include <benchmark/benchmark.h>
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
 // The kernels live in the plugin, which the bench does not link: compile them in here.
+#include "../plugins/context/hash_grid/binary_grid.cpp"
 #include "../plugins/context/hash_grid/hash_grid_kernels.cpp"
 #include "crpgs/runtime.h"
 
@@ -61,9 +63,22 @@ void BM_ReferenceForward(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * in.pos.size(0));
 }
 
+void BM_TableBits(benchmark::State& state) {
+  at::set_num_threads(int(state.range(0)));
+  const auto& in = inputs();
+  auto table = in.table.clone().requires_grad_(true);
+  for (auto _ : state) {
+    table.mutable_grad() = torch::Tensor();
+    crpgs::hash_grid::table_bits(table, true).backward();
+    benchmark::DoNotOptimize(table.grad().data_ptr<float>());
+  }
+  state.SetItemsProcessed(state.iterations() * table.numel());
+}
+
 BENCHMARK(BM_Forward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Backward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_ReferenceForward)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_TableBits)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 

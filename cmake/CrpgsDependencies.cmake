@@ -7,6 +7,9 @@ find_package(ZLIB REQUIRED)                    # crc32 for bitstream sections
 find_package(PkgConfig REQUIRED)
 pkg_check_modules(STB REQUIRED IMPORTED_TARGET stb)   # libstb-dev: PNG/JPEG decode and encode
 find_package(Threads REQUIRED)
+# libgomp (gcc): ATen's at::parallel_for is a header template that runs serially in any TU
+# compiled without -fopenmp, so every target with such kernels links OpenMP::OpenMP_CXX.
+find_package(OpenMP)
 if(CRPGS_BUILD_APPS)
   find_package(CLI11 REQUIRED)                 # libcli11-dev (header-only)
 endif()

@@ -9,6 +9,14 @@ function(crpgs_add_plugin kind type)
   else()
     target_link_libraries(${target} PRIVATE crpgs)
   endif()
+  # ATen's at::parallel_for is a header template: without -fopenmp in the plugin's own TUs it
+  # runs serially there, whatever the thread count.
+  if(NOT DEFINED OpenMP_CXX_FOUND)
+    find_package(OpenMP QUIET)  # out-of-tree plugins
+  endif()
+  if(OpenMP_CXX_FOUND)
+    target_link_libraries(${target} PRIVATE OpenMP::OpenMP_CXX)
+  endif()
   if(COMMAND crpgs_set_warnings)
     crpgs_set_warnings(${target})
   endif()

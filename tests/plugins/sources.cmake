@@ -4,6 +4,7 @@ list(APPEND CRPGS_TORCH_TEST_SOURCES
   plugins/test_hash_grid.cpp
   plugins/test_gaussian_coding.cpp
   plugins/test_sfa.cpp
+  ../plugins/context/hash_grid/binary_grid.cpp
   ../plugins/context/hash_grid/hash_grid_kernels.cpp
   ../plugins/entropy/gaussian/gaussian_coding.cpp)
 set_source_files_properties(../plugins/context/hash_grid/hash_grid_kernels.cpp

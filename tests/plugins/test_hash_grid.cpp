@@ -11,6 +11,7 @@
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
+#include "../plugins/context/hash_grid/binary_grid.h"
 #include "../plugins/context/hash_grid/hash_grid_kernels.h"
 #include "crpgs/context_model.h"
 #include "plugins/plugin_test_util.h"
@@ -268,6 +269,43 @@ TEST(HashGridComponent, LevelCountMustMatchResolutions) {
                                           {50, 10, 0, 50, {0, 0, 0, 0}});
   ASSERT_FALSE(c.ok());
   EXPECT_NE(c.status().message().find("n_levels"), std::string::npos) << c.status().message();
+}
+
+/// table_bits's fused CPU function against the ATen expression evaluated in double (in float,
+/// the expression's own rounding of −log2(1 − p) near a clamp is ~1e-3 bits off): value and
+/// straight-through gradient, for p inside (0, 1) and clamped at either end, with entries
+/// outside |t| <= 1.
+TEST(HashGridTableBits, FusedFunctionMatchesTheAtenExpression) {
+  struct Case {
+    const char* name;
+    double positive_share;
+    torch::ScalarType type;
+  };
+  for (const Case c :
+       {Case{"p 0.3", 0.3, torch::kFloat}, Case{"p 0.5 double", 0.5, torch::kDouble},
+        Case{"all negative", 0.0, torch::kFloat}, Case{"all positive", 1.0, torch::kFloat}}) {
+    SCOPED_TRACE(c.name);
+    torch::manual_seed(11);
+    const auto opts = torch::TensorOptions().dtype(c.type);
+    const auto sign = torch::where(torch::rand({20000, 4}, opts) < c.positive_share,
+                                   torch::ones({20000, 4}, opts), -torch::ones({20000, 4}, opts));
+    const auto values = sign * torch::rand({20000, 4}, opts) * 1.5;  // ~1/3 with |t| > 1
+    auto fused = values.clone().requires_grad_(true);
+    auto reference = values.to(torch::kDouble).requires_grad_(true);
+    const auto bits = hash_grid::table_bits(fused, true);
+    const auto expected = hash_grid::table_bits_reference(reference);
+    ASSERT_EQ(bits.dim(), 0);
+    EXPECT_EQ(bits.scalar_type(), c.type);
+    EXPECT_NEAR(bits.item<double>(), expected.item<double>(), 1e-6 * expected.item<double>());
+    (bits * 0.37).backward();
+    (expected * 0.37).backward();
+    ASSERT_TRUE(fused.grad().defined());
+    const auto got = fused.grad().to(torch::kDouble), want = reference.grad();
+    // Same entries without gradient (|t| > 1), same slope elsewhere.
+    EXPECT_TRUE(torch::equal(got.eq(0), want.eq(0)));
+    EXPECT_TRUE(torch::allclose(got, want, 1e-6, 1e-12));
+    EXPECT_GT(got.ne(0).sum().item<int64_t>(), 0);
+  }
 }
 
 TEST(HashGridComponent, ParameterBitsIsHacBhAndDifferentiable) {

@@ -3,6 +3,11 @@
 /// the `hash_grid` and `sfa` plugins).
 #include "binary_grid.h"
 
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
 #include <stdexcept>
 
 #include <torch/torch.h>
@@ -36,6 +41,48 @@ struct GridFunction : torch::autograd::Function<GridFunction> {
     const bool binarize = ctx->saved_data["binarize"].toBool();
     auto grad = grid_backward(*spec, saved[0], saved[1], grads[0], binarize);
     return {torch::Tensor(), grad, torch::Tensor(), torch::Tensor()};
+  }
+};
+
+/// B_h of a binarised CPU table in one counting pass, its gradient in one more: the ATen
+/// expression (table_bits_reference) made ~10 passes over the table each way, per grid and
+/// iteration of the rate phase. dB_h/dn₊ = log2((1−p)/p) whether or not p is clamped (the terms
+/// through p cancel when it is not, vanish when it is), and dn₊/dt = 0.5 · [|t| ≤ 1].
+struct TableBitsFunction : torch::autograd::Function<TableBitsFunction> {
+  static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& table) {
+    const auto t = table.contiguous();
+    int64_t n_pos = 0;
+    AT_DISPATCH_FLOATING_TYPES(t.scalar_type(), "table_bits", [&] {
+      const scalar_t* d = t.data_ptr<scalar_t>();
+      n_pos = at::parallel_reduce(
+          0, t.numel(), 1 << 16, int64_t(0),
+          [&](int64_t begin, int64_t end, int64_t acc) {
+            for (int64_t i = begin; i < end; ++i) acc += int64_t(d[i] >= scalar_t(0));
+            return acc;
+          },
+          std::plus<int64_t>());
+    });
+    const double n = double(t.numel()), np = double(n_pos);
+    const double p = std::clamp(np / n, 1e-6, 1 - 1e-6);
+    ctx->save_for_backward({table});
+    ctx->saved_data["slope"] = 0.5 * std::log2((1 - p) / p);
+    return torch::full({}, np * -std::log2(p) + (n - np) * -std::log2(1 - p) + 32.0,
+                       table.options());
+  }
+  static torch::autograd::tensor_list backward(torch::autograd::AutogradContext* ctx,
+                                               torch::autograd::tensor_list grads) {
+    const auto t = ctx->get_saved_variables()[0].contiguous();
+    const double coef = grads[0].item<double>() * ctx->saved_data["slope"].toDouble();
+    auto grad = torch::empty_like(t, at::MemoryFormat::Contiguous);
+    AT_DISPATCH_FLOATING_TYPES(t.scalar_type(), "table_bits_backward", [&] {
+      const scalar_t* d = t.data_ptr<scalar_t>();
+      scalar_t* g = grad.data_ptr<scalar_t>();
+      const auto c = scalar_t(coef);
+      at::parallel_for(0, t.numel(), 1 << 16, [&](int64_t begin, int64_t end) {
+        for (int64_t i = begin; i < end; ++i) g[i] = std::abs(d[i]) <= scalar_t(1) ? c : 0;
+      });
+    });
+    return {grad};
   }
 };
 
@@ -110,6 +157,11 @@ torch::Tensor grid_lookup(const GridSpec& spec, const torch::Tensor& positions01
 
 torch::Tensor table_bits(const torch::Tensor& table, bool binarize) {
   if (!binarize) return torch::full({}, double(table.numel()) * 32.0);
+  if (table.device().is_cpu() && table.numel() > 0) return TableBitsFunction::apply(table);
+  return table_bits_reference(table);
+}
+
+torch::Tensor table_bits_reference(const torch::Tensor& table) {
   const auto mask = table.detach().abs().le(1).to(table.scalar_type());
   const auto b = binarize_values(table.detach()) + (table - table.detach()) * mask;
   const double n = double(b.numel());

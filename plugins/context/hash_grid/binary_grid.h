@@ -52,7 +52,11 @@ torch::Tensor grid_lookup(const GridSpec& spec, const torch::Tensor& positions01
 /// HAC's B_h = n₊(−log2 p) + n₋(−log2(1−p)) + 32, p = n₊/n clamped to [1e-6, 1−1e-6], over the
 /// whole table, differentiable through the straight-through estimator (a scalar). A float
 /// table (binarize false) counts 32 bits per value, with no gradient.
+/// On CPU, a fused autograd function of two passes over the table.
 torch::Tensor table_bits(const torch::Tensor& table, bool binarize);
+/// The binarised B_h as an ATen expression, differentiated by autograd: the definition the fused
+/// CPU function is tested against, and the path for tables on other devices.
+torch::Tensor table_bits_reference(const torch::Tensor& table);
 
 /// Binary: `varint L | L bytes encode_bernoulli(bit = value >= 0)` in row-major order; float:
 /// numel float32. Throws (TORCH_CHECK) only if the bit coder fails, which it cannot for 0/1.

@@ -101,7 +101,12 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
   const bool packed = binarize && F <= kMaxPackedFeatures;
   const std::vector<uint8_t> signs =
       packed ? pack_signs(table, spec.n_entries, F) : std::vector<uint8_t>();
+  const uint8_t* sign_bits = signs.data();
   at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
+    // Locals, not captures: with OpenMP the lambda is also outlined, and the feature count must
+    // stay a compile-time constant there (kF > 0) for the feature loop to unroll.
+    const int64_t nf = kF > 0 ? kF : F, row_width = width;
+    const bool use_signs = packed;
     scalar_t w[8];
     int64_t row[8];
     // Level-outer inside blocks of 1024 points: one level's table and the block's output rows
@@ -109,22 +114,22 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
     for (int64_t b0 = begin; b0 < end; b0 += 1024) {
       const int64_t b1 = std::min(end, b0 + 1024);
       // One fill per block: zeroing F values per point and level compiled to a memset call each.
-      std::fill(out + b0 * width, out + b1 * width, scalar_t(0));
+      std::fill(out + b0 * row_width, out + b1 * row_width, scalar_t(0));
       for (size_t l = 0; l < spec.levels.size(); ++l) {
         const GridLevel& lv = spec.levels[l];
         for (int64_t b = b0; b < b1; ++b) {
-          scalar_t* o = out + b * width + int64_t(l) * F;
+          scalar_t* o = out + b * row_width + int64_t(l) * nf;
           if (!corners(lv, pos + b * 3, w, row)) continue;
           for (int c = 0; c < (1 << lv.dim); ++c) {
-            if (packed) {
-              const unsigned bits = signs[size_t(row[c])];
+            if (use_signs) {
+              const unsigned bits = sign_bits[row[c]];
               // Branch-free sign: random signs would mispredict a branch half the time.
-              for (int64_t f = 0; f < F; ++f)
+              for (int64_t f = 0; f < nf; ++f)
                 o[f] = o[f] + w[c] * scalar_t(int((bits >> f) & 1u) * 2 - 1);
               continue;
             }
-            const scalar_t* t = table + row[c] * F;
-            for (int64_t f = 0; f < F; ++f) {
+            const scalar_t* t = table + row[c] * nf;
+            for (int64_t f = 0; f < nf; ++f) {
               const scalar_t v = binarize ? scalar_t(int(t[f] >= scalar_t(0)) * 2 - 1) : t[f];
               o[f] = o[f] + w[c] * v;
             }
@@ -149,10 +154,17 @@ void backward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* gr
                    scalar_t* grad_table) {
   const int64_t F = spec.n_features, width = spec.output_dim();
   const int64_t n_levels = int64_t(spec.levels.size());
+  // Levels write disjoint table rows, so threads split them. The 3D levels (8 corners) come
+  // first and cost about twice the 2D ones (4 corners): taking levels in the order 0, n−1, 1,
+  // n−2, ... gives each contiguous share of the range a mix of both.
+  std::vector<int64_t> order(static_cast<size_t>(n_levels));
+  for (int64_t i = 0; i < n_levels; ++i)
+    order[size_t(i)] = i % 2 == 0 ? i / 2 : n_levels - 1 - i / 2;
   at::parallel_for(0, n_levels, 1, [&](int64_t lbegin, int64_t lend) {
     scalar_t w[8];
     int64_t row[8];
-    for (int64_t l = lbegin; l < lend; ++l) {
+    for (int64_t i = lbegin; i < lend; ++i) {
+      const int64_t l = order[size_t(i)];
       const GridLevel& lv = spec.levels[size_t(l)];
       for (int64_t b = 0; b < n; ++b) {
         if (!corners(lv, pos + b * 3, w, row)) continue;
@@ -250,7 +262,17 @@ at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
     backward_impl<scalar_t>(spec, pos.data_ptr<scalar_t>(), go.data_ptr<scalar_t>(), pos.size(0),
                             grad.data_ptr<scalar_t>());
   });
-  if (binarize) grad.mul_(table.abs().le(1).to(grad.scalar_type()));
+  if (binarize) {
+    // Straight through where |t| <= 1, in one pass (the ATen expression made four).
+    AT_DISPATCH_FLOATING_TYPES(table.scalar_type(), "hash_grid_ste", [&] {
+      const auto tab = table.contiguous();
+      const scalar_t* t = tab.data_ptr<scalar_t>();
+      scalar_t* g = grad.data_ptr<scalar_t>();
+      at::parallel_for(0, grad.numel(), 1 << 16, [&](int64_t begin, int64_t end) {
+        for (int64_t i = begin; i < end; ++i) g[i] = g[i] * scalar_t(std::abs(t[i]) <= scalar_t(1));
+      });
+    });
+  }
   return grad;
 }
 
