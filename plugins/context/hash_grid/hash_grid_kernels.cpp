@@ -101,12 +101,7 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
   const bool packed = binarize && F <= kMaxPackedFeatures;
   const std::vector<uint8_t> signs =
       packed ? pack_signs(table, spec.n_entries, F) : std::vector<uint8_t>();
-  const uint8_t* sign_bits = signs.data();
   at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
-    // Locals, not captures: with OpenMP the lambda is also outlined, and the feature count must
-    // stay a compile-time constant there (kF > 0) for the feature loop to unroll.
-    const int64_t nf = kF > 0 ? kF : F, row_width = width;
-    const bool use_signs = packed;
     scalar_t w[8];
     int64_t row[8];
     // Level-outer inside blocks of 1024 points: one level's table and the block's output rows
@@ -114,22 +109,22 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
     for (int64_t b0 = begin; b0 < end; b0 += 1024) {
       const int64_t b1 = std::min(end, b0 + 1024);
       // One fill per block: zeroing F values per point and level compiled to a memset call each.
-      std::fill(out + b0 * row_width, out + b1 * row_width, scalar_t(0));
+      std::fill(out + b0 * width, out + b1 * width, scalar_t(0));
       for (size_t l = 0; l < spec.levels.size(); ++l) {
         const GridLevel& lv = spec.levels[l];
         for (int64_t b = b0; b < b1; ++b) {
-          scalar_t* o = out + b * row_width + int64_t(l) * nf;
+          scalar_t* o = out + b * width + int64_t(l) * F;
           if (!corners(lv, pos + b * 3, w, row)) continue;
           for (int c = 0; c < (1 << lv.dim); ++c) {
-            if (use_signs) {
-              const unsigned bits = sign_bits[row[c]];
+            if (packed) {
+              const unsigned bits = signs[size_t(row[c])];
               // Branch-free sign: random signs would mispredict a branch half the time.
-              for (int64_t f = 0; f < nf; ++f)
+              for (int64_t f = 0; f < F; ++f)
                 o[f] = o[f] + w[c] * scalar_t(int((bits >> f) & 1u) * 2 - 1);
               continue;
             }
-            const scalar_t* t = table + row[c] * nf;
-            for (int64_t f = 0; f < nf; ++f) {
+            const scalar_t* t = table + row[c] * F;
+            for (int64_t f = 0; f < F; ++f) {
               const scalar_t v = binarize ? scalar_t(int(t[f] >= scalar_t(0)) * 2 - 1) : t[f];
               o[f] = o[f] + w[c] * v;
             }

@@ -481,12 +481,11 @@ Packed pack_one(const float* m2, const float* con, float op, const float* col, f
   p.g = col[1];
   p.bl = col[2];
   p.d = depth;
-  p.q = float(2.0 * std::log(255.0 * double(op)));
-  alpha_extent(con, op, p.ex, p.ey);
+  p.q = float(alpha_extent(con, op, p.ex, p.ey));
   return p;
 }
 
-void alpha_extent(const float* con, float op, float& ex, float& ey) {
+double alpha_extent(const float* con, float op, float& ex, float& ey) {
   // alpha >= 1/255 needs q = d^T K d <= Q = 2 ln(255 op); the ellipse's x half-extent is
   // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
   const double Q = 2.0 * std::log(255.0 * double(op));
@@ -497,6 +496,7 @@ void alpha_extent(const float* con, float op, float& ex, float& ey) {
     ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
     ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);
   }
+  return Q;
 }
 
 CRPGS_TARGET_CLONES

@@ -20,8 +20,9 @@ struct alignas(64) Packed {
 Packed pack_one(const float* m2, const float* con, float op, const float* col, float depth);
 
 /// The half-extents ex, ey of Packed for a conic and opacity (ex < 0: alpha never reaches
-/// 1/255). A pixel x takes part only if |x + 0.5 - mx| <= ex, and likewise in y.
-void alpha_extent(const float* con, float op, float& ex, float& ey);
+/// 1/255). A pixel x takes part only if |x + 0.5 - mx| <= ex, and likewise in y. Returns
+/// Q = 2 ln(255 op), the bound on the conic's quadratic form (Packed::q).
+double alpha_extent(const float* con, float op, float& ex, float& ey);
 
 /// Read-only inputs shared by every tile.
 struct TileInputs {
