@@ -62,9 +62,14 @@ at::Tensor sum_in_order(const at::Tensor& parts) {
 // output h, overwritten): its partial dw1 and db1, and its rows of dx where dx is defined.
 void first_layer_backward(at::Tensor& dh, const at::Tensor& h, const at::Tensor& x,
                           const at::Tensor& w1, at::Tensor dw1, at::Tensor db1, at::Tensor dx) {
-  dh.masked_fill_(h.le(0), 0);  // h > 0 exactly where the ReLU passed its input
+  // h > 0 exactly where the ReLU passed its input.
+  TORCH_CHECK(dh.is_contiguous() && h.is_contiguous() && db1.is_contiguous(),
+              "chunked_mlp: a chunk's buffers must be contiguous");
+  AT_DISPATCH_FLOATING_TYPES(dh.scalar_type(), "relu_backward", [&] {
+    sparse_head::relu_backward(h.data_ptr<scalar_t>(), dh.size(0), dh.size(1),
+                               dh.data_ptr<scalar_t>(), db1.data_ptr<scalar_t>());
+  });
   at::mm_out(dw1, dh.t(), x);
-  at::sum_out(db1, dh, 0);
   if (dx.defined()) at::mm_out(dx, dh, w1);
 }
 

@@ -1,7 +1,7 @@
 /// @file sparse_head_kernels.cpp
 /// @brief The per-Gaussian output layer, compiled for x86-64-v4, x86-64-v3 and baseline x86-64
 /// (target_clones): a Gaussian's O outputs are one 8-lane vector accumulated over the hidden
-/// units; the backward's loops over the hidden units vectorise as they are.
+/// units; the backward's loops over the hidden units (and the ReLU's) vectorise as they are.
 #include "model/sparse_head_kernels.h"
 
 #include "core/target_clones.h"
@@ -9,6 +9,21 @@
 namespace crpgs::sparse_head {
 namespace {
 typedef float vf __attribute__((vector_size(kLanes * sizeof(float))));
+
+template <typename T>
+inline __attribute__((always_inline)) void relu_backward_impl(const T* h, int64_t n, int64_t H,
+                                                              T* dh, T* db1) {
+  for (int64_t k = 0; k < H; ++k) db1[k] = T(0);
+  for (int64_t r = 0; r < n; ++r) {
+    const T* hr = h + r * H;
+    T* d = dh + r * H;
+    for (int64_t k = 0; k < H; ++k) {
+      const T v = hr[k] > T(0) ? d[k] : T(0);
+      d[k] = v;
+      db1[k] += v;
+    }
+  }
+}
 }  // namespace
 
 CRPGS_TARGET_CLONES
@@ -49,6 +64,16 @@ void backward(const Layer& l, int64_t g_begin, int64_t g_end, const float* dy, i
       db2[r] += d;
     }
   }
+}
+
+CRPGS_TARGET_CLONES
+void relu_backward(const float* h, int64_t n, int64_t H, float* dh, float* db1) {
+  relu_backward_impl(h, n, H, dh, db1);
+}
+
+CRPGS_TARGET_CLONES
+void relu_backward(const double* h, int64_t n, int64_t H, double* dh, double* db1) {
+  relu_backward_impl(h, n, H, dh, db1);
 }
 
 }  // namespace crpgs::sparse_head

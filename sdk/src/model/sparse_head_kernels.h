@@ -1,6 +1,6 @@
 /// @file sparse_head_kernels.h
-/// @brief Per-Gaussian output layer of the colour and covariance MLPs (see sparse_mlp), on raw
-/// float arrays; no libtorch header.
+/// @brief Per-Gaussian output layer of the colour and covariance MLPs (see sparse_mlp) and the
+/// hidden ReLU's backward of every chunked MLP, on raw float arrays; no libtorch header.
 #pragma once
 
 #include <cstdint>
@@ -31,5 +31,11 @@ void forward(const Layer& l, int64_t g_begin, int64_t g_end, float* y);
 /// h[row[g], :] and db2 += dy[g, o] (both zeroed by the caller), Gaussians in order.
 void backward(const Layer& l, int64_t g_begin, int64_t g_end, const float* dy, int64_t first_row,
               float* dh, float* dw2, float* db2);
+
+/// The hidden ReLU's backward for rows [0, n) of [n, H] arrays, in place: dh[r, k] = 0 where
+/// h[r, k] <= 0 (h is the ReLU's output), and db1[k] = sum_r dh[r, k] (overwritten), rows in
+/// order. One pass where the ATen ops (le, masked_fill_, sum) took three.
+void relu_backward(const float* h, int64_t n, int64_t H, float* dh, float* db1);
+void relu_backward(const double* h, int64_t n, int64_t H, double* dh, double* db1);
 
 }  // namespace crpgs::sparse_head
