@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -363,6 +364,27 @@ TEST(RasterStages, IntersectListsEveryOverlapSortedByDepth) {
 
 // Enough Gaussians that the fill runs in two ranges, many equal depths (ties go by index),
 // negative and zero depths, and culled ones: every tile's list equals a sort by (depth, index).
+TEST(RasterStages, TileRectIsTheClampedFloorOfTheBox) {
+  // The tiles [floor((m - r) / 16), floor((m + r + 15) / 16)) clamped to the grid, for means on
+  // and beside tile borders, off-image on either side, far away, and not finite.
+  auto expect = [](double v, int hi) {
+    return int(std::min<double>(hi, std::max(0.0, std::floor(v))));
+  };
+  const float inf = std::numeric_limits<float>::infinity();
+  const std::vector<float> means{-1e30f, -100.f, -16.5f, -16.f,  -0.5f,        -0.f, 0.f,
+                                 0.49f,  15.99f, 16.f,   16.01f, 47.5f,        63.f, 64.f,
+                                 80.5f,  1e30f,  inf,    -inf,   std::nanf("")};
+  for (float m : means) {
+    for (int r : {0, 1, 3, 16, 17, 1000}) {
+      const TileRect t = tile_rect(m, m * 0.5f, r, 4, 3);
+      EXPECT_EQ(t.x0, expect((double(m) - r) / 16, 4)) << m << " r " << r;
+      EXPECT_EQ(t.x1, expect((double(m) + r + 15) / 16, 4)) << m << " r " << r;
+      EXPECT_EQ(t.y0, expect((double(m * 0.5f) - r) / 16, 3)) << m << " r " << r;
+      EXPECT_EQ(t.y1, expect((double(m * 0.5f) + r + 15) / 16, 3)) << m << " r " << r;
+    }
+  }
+}
+
 TEST(RasterStages, IntersectOrderHoldsForTiesNegativeDepthsAndTwoRanges) {
   constexpr int64_t n = 20000;
   constexpr int W = 96, H = 64;

@@ -188,6 +188,13 @@ kernels::TileInputs tile_inputs(const std::vector<Packed>& gs, const TileInterse
   return in;
 }
 
+// min(hi, max(0, floor(v))) without floor: clamping first and truncating gives the same int for
+// every v (NaN -> 0), in a few branch-free instructions where baseline x86-64's floor is a
+// branchy bit trick.
+int clamped_floor(double v, int hi) {
+  return int(std::min<double>(hi, std::max(0.0, v)));
+}
+
 // Tiles holding a pixel whose centre lies in the Gaussian's alpha >= 1/255 box (the pixel
 // loops' own test, pixel_range, in the same float arithmetic); empty when there is none.
 TileRect alpha_tile_rect(const float* m2, const float* con, float op, int tiles_x, int tiles_y) {
@@ -199,7 +206,7 @@ TileRect alpha_tile_rect(const float* m2, const float* con, float op, int tiles_
   if (!(fx1 >= fx0 && fy1 >= fy0)) return TileRect{0, 0, 0, 0};
   // First tile of a pixel coordinate, and one past the last, clamped to [0, tiles].
   auto tile = [](float p, int tiles, int past) {
-    return int(std::min<double>(tiles, std::max(0.0, std::floor(double(p) / kTileSize) + past)));
+    return clamped_floor(double(p) / kTileSize + past, tiles);
   };
   return TileRect{tile(fx0, tiles_x, 0), tile(fy0, tiles_y, 0), tile(fx1, tiles_x, 1),
                   tile(fy1, tiles_y, 1)};
@@ -253,13 +260,12 @@ int resolve_threads(int requested) {
 }
 
 TileRect tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y) {
-  auto clampd = [](double v, int hi) { return int(std::min<double>(hi, std::max(0.0, v))); };
   const double r = radius;
   TileRect t;
-  t.x0 = clampd(std::floor((mx - r) / kTileSize), tiles_x);
-  t.y0 = clampd(std::floor((my - r) / kTileSize), tiles_y);
-  t.x1 = clampd(std::floor((mx + r + kTileSize - 1) / kTileSize), tiles_x);
-  t.y1 = clampd(std::floor((my + r + kTileSize - 1) / kTileSize), tiles_y);
+  t.x0 = clamped_floor((mx - r) / kTileSize, tiles_x);
+  t.y0 = clamped_floor((my - r) / kTileSize, tiles_y);
+  t.x1 = clamped_floor((mx + r + kTileSize - 1) / kTileSize, tiles_x);
+  t.y1 = clamped_floor((my + r + kTileSize - 1) / kTileSize, tiles_y);
   return t;
 }
 
