@@ -118,7 +118,9 @@ struct ProjState {
 // Returns false when culled by depth or a non-positive-definite covariance. Computed in locals
 // and stored once at the end: Eigen's paired loads of members written a moment before stalled on
 // store forwarding (a fifth of this function's time).
-bool project_one(const CamD& cam, const float* m, const float* s, const float* q, ProjState& st) {
+inline __attribute__((always_inline)) bool project_one(const CamD& cam, const float* m,
+                                                       const float* s, const float* q,
+                                                       ProjState& st) {
   const Vec3 p = cam.R * Vec3(m[0], m[1], m[2]) + cam.t;
   const double z = p.z();
   st.p = p;
