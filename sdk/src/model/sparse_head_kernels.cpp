@@ -50,19 +50,38 @@ void backward(const Layer& l, int64_t g_begin, int64_t g_end, const float* dy, i
               float* dh, float* dw2, float* db2) {
   const int64_t H = l.H;
   const int O = l.O;
+  auto load = [](const float* p) {
+    vf v;
+    __builtin_memcpy(&v, p, sizeof(vf));
+    return v;
+  };
+  auto store = [](float* p, vf v) { __builtin_memcpy(p, &v, sizeof(vf)); };
   for (int64_t g = g_begin; g < g_end; ++g) {
     const int64_t s = l.slot[g];
     const float* h = l.h + l.row[g] * H;
     float* dhr = dh + (l.row[g] - first_row) * H;
-    for (int o = 0; o < O; ++o) {
-      const float d = dy[g * O + o];
-      const int64_t r = s * O + o;
-      const float* w = l.w2 + r * H;
-      float* dw = dw2 + r * H;
-      for (int64_t k = 0; k < H; ++k) dhr[k] += d * w[k];
-      for (int64_t k = 0; k < H; ++k) dw[k] += d * h[k];
-      db2[r] += d;
+    const float* d = dy + g * O;
+    const float* w = l.w2 + s * O * H;  // rows s*O + o, o < O
+    float* dw = dw2 + s * O * H;
+    // A block of hidden units at a time: dhr's block takes the O outputs in a register (the
+    // same additions in the same order as one output at a time) and h's block is loaded once.
+    int64_t k = 0;
+    for (; k + kLanes <= H; k += kLanes) {
+      vf acc = load(dhr + k);
+      const vf hv = load(h + k);
+      for (int o = 0; o < O; ++o) {
+        acc += d[o] * load(w + o * H + k);
+        store(dw + o * H + k, load(dw + o * H + k) + d[o] * hv);
+      }
+      store(dhr + k, acc);
     }
+    for (; k < H; ++k) {
+      for (int o = 0; o < O; ++o) {
+        dhr[k] += d[o] * w[o * H + k];
+        dw[o * H + k] += d[o] * h[k];
+      }
+    }
+    for (int o = 0; o < O; ++o) db2[s * O + o] += d[o];
   }
 }
 
