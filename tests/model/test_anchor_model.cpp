@@ -24,12 +24,14 @@ torch::Tensor gather_grad(const torch::Tensor& src0, const torch::Tensor& index,
   return src.grad();
 }
 
-// Repeats, gaps, unselected rows at both ends, an empty index; 1-D to 3-D rows, float and double.
+// Repeats, gaps, unselected rows at both ends, an empty index (no repeat: the backward's copy
+// path; repeats: its sum path); 1-D to 3-D rows, float and double.
 TEST(GatherSortedRows, SameValuesAndGradientsAsIndexSelectBitForBit) {
   torch::manual_seed(5);
   const std::vector<std::vector<int64_t>> indices{
       {1, 1, 1, 2, 5, 5, 9, 12, 12, 12, 12, 13},
       {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14},
+      {2, 3, 7, 11},
       {14, 14},
       {}};
   for (auto dtype : {torch::kFloat, torch::kDouble})

@@ -33,28 +33,54 @@ at::Tensor run_starts(const at::Tensor& idx, int64_t rows) {
   return first;
 }
 
+/// out[idx[j]] = grad[j] and every other row of out = 0, for a strictly increasing idx: position
+/// j writes the rows (idx[j-1], idx[j]], so each row is written once.
+void scatter_unique_rows(const at::Tensor& idx, const at::Tensor& grad, at::Tensor& out) {
+  const int64_t* p = idx.data_ptr<int64_t>();
+  const int64_t n = idx.numel(), rows = out.size(0), width = rows > 0 ? out.numel() / rows : 0;
+  AT_DISPATCH_FLOATING_TYPES(grad.scalar_type(), "gather_sorted_rows_scatter", [&] {
+    const scalar_t* g = grad.data_ptr<scalar_t>();
+    scalar_t* o = out.data_ptr<scalar_t>();
+    at::parallel_for(0, n + 1, kGrain, [&](int64_t b, int64_t e) {
+      for (int64_t j = b; j < e; ++j) {
+        const int64_t lo = j == 0 ? -1 : p[j - 1], hi = j == n ? rows : p[j];
+        std::fill(o + (lo + 1) * width, o + hi * width, scalar_t(0));
+        if (j < n) std::copy(g + j * width, g + (j + 1) * width, o + hi * width);
+      }
+    });
+  });
+}
+
 struct GatherSortedRows : public torch::autograd::Function<GatherSortedRows> {
   static at::Tensor forward(AutogradContext* ctx, const at::Tensor& src, const at::Tensor& index) {
     const at::Tensor idx = index.contiguous();
     const int64_t n = idx.numel(), rows = src.size(0);
-    if (n > 0) {
-      const int64_t lo = idx.min().item<int64_t>(), hi = idx.max().item<int64_t>();
-      TORCH_CHECK(lo >= 0 && hi < rows, "gather_sorted_rows: index values ", lo, "..", hi,
-                  " are out of range for ", rows, " rows");
-      TORCH_CHECK(n < 2 || idx.narrow(0, 1, n - 1).ge(idx.narrow(0, 0, n - 1)).all().item<bool>(),
-                  "gather_sorted_rows: the index decreases");
+    const int64_t* p = idx.data_ptr<int64_t>();
+    bool strict = true;  // no row taken twice: the backward is a copy, not a sum
+    for (int64_t j = 1; j < n; ++j) {
+      TORCH_CHECK(p[j] >= p[j - 1], "gather_sorted_rows: the index decreases at position ", j);
+      strict = strict && p[j] > p[j - 1];
     }
+    if (n > 0)
+      TORCH_CHECK(p[0] >= 0 && p[n - 1] < rows, "gather_sorted_rows: index values ", p[0], "..",
+                  p[n - 1], " are out of range for ", rows, " rows");
     ctx->save_for_backward({idx});
     ctx->saved_data["sizes"] = src.sizes().vec();
+    ctx->saved_data["strict"] = strict;
     return src.index_select(0, idx);
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const auto sizes = ctx->saved_data["sizes"].toIntVector();
-    const at::Tensor first = run_starts(ctx->get_saved_variables()[0], sizes[0]);
+    const at::Tensor idx = ctx->get_saved_variables()[0];
     const at::Tensor grad = grads[0].contiguous();
     at::Tensor out = at::empty(sizes, grad.options());
     const int64_t rows = sizes[0], width = rows > 0 ? out.numel() / rows : 0;
+    if (ctx->saved_data["strict"].toBool()) {
+      scatter_unique_rows(idx, grad, out);
+      return {out, at::Tensor()};
+    }
+    const at::Tensor first = run_starts(idx, rows);
     const int64_t* f = first.data_ptr<int64_t>();
     AT_DISPATCH_FLOATING_TYPES(grad.scalar_type(), "gather_sorted_rows_backward", [&] {
       const scalar_t* g = grad.data_ptr<scalar_t>();
