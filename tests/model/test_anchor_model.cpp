@@ -56,6 +56,15 @@ TEST(GatherSortedRows, SameValuesAndGradientsAsIndexSelectBitForBit) {
   ASSERT_FALSE(upstream.is_contiguous());
   EXPECT_TRUE(torch::equal(gather_grad(src, index, upstream, true),
                            gather_grad(src, index, upstream, false)));
+  // Long indices, without and with repeats, over many parallel chunks: runs of consecutive rows
+  // and gaps meet the chunk borders anywhere.
+  auto big = torch::randn({50000, 3});
+  auto picked = (torch::rand({50000}) < 0.6).nonzero().squeeze(1);
+  for (const auto& idx :
+       {picked, std::get<0>(torch::sort(torch::cat({picked, picked.narrow(0, 0, 999)})))}) {
+    auto up = torch::randn({idx.size(0), 3});
+    EXPECT_TRUE(torch::equal(gather_grad(big, idx, up, true), gather_grad(big, idx, up, false)));
+  }
 }
 
 TEST(GatherSortedRows, SameGradientWithOneAndTwoThreads) {

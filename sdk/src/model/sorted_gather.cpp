@@ -34,7 +34,8 @@ at::Tensor run_starts(const at::Tensor& idx, int64_t rows) {
 }
 
 /// out[idx[j]] = grad[j] and every other row of out = 0, for a strictly increasing idx: position
-/// j writes the rows (idx[j-1], idx[j]], so each row is written once.
+/// j writes the rows (idx[j-1], idx[j]] (a run of consecutive positions, their rows together), so
+/// each row is written once.
 void scatter_unique_rows(const at::Tensor& idx, const at::Tensor& grad, at::Tensor& out) {
   const int64_t* p = idx.data_ptr<int64_t>();
   const int64_t n = idx.numel(), rows = out.size(0), width = rows > 0 ? out.numel() / rows : 0;
@@ -42,10 +43,15 @@ void scatter_unique_rows(const at::Tensor& idx, const at::Tensor& grad, at::Tens
     const scalar_t* g = grad.data_ptr<scalar_t>();
     scalar_t* o = out.data_ptr<scalar_t>();
     at::parallel_for(0, n + 1, kGrain, [&](int64_t b, int64_t e) {
-      for (int64_t j = b; j < e; ++j) {
+      for (int64_t j = b; j < e;) {
         const int64_t lo = j == 0 ? -1 : p[j - 1], hi = j == n ? rows : p[j];
         std::fill(o + (lo + 1) * width, o + hi * width, scalar_t(0));
-        if (j < n) std::copy(g + j * width, g + (j + 1) * width, o + hi * width);
+        if (j == n) break;
+        // Consecutive rows in one copy (nonzero() indices come in long runs).
+        int64_t end = j + 1;
+        while (end < e && end < n && p[end] == p[end - 1] + 1) ++end;
+        std::copy(g + j * width, g + end * width, o + hi * width);
+        j = end;
       }
     });
   });
