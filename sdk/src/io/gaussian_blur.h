@@ -49,10 +49,13 @@ void blur_rows(const T* in, T* out, int64_t y0, int64_t y1, int64_t width, int64
       dst[i] = s;
     };
     for (int64_t i = 0; i < inner0; ++i) border(i);
-    for (int64_t i = inner0; i < inner1; ++i) {
-      T s = 0;
-      for (int k = 0; k < kTaps; ++k) s += g[size_t(k)] * src[i + (k - kRadius) * channels];
-      dst[i] = s;
+    // Interior: one sweep of the row per tap, which vectorises across outputs (the taps of one
+    // output are `channels` apart); each output still adds its taps in order, from 0.
+    std::fill(dst + inner0, dst + inner1, T(0));
+    for (int k = 0; k < kTaps; ++k) {
+      const T gk = g[size_t(k)];
+      const T* tap = src + (k - kRadius) * channels;
+      for (int64_t i = inner0; i < inner1; ++i) dst[i] += gk * tap[i];
     }
     for (int64_t i = inner1; i < len; ++i) border(i);
   }

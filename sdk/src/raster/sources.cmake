@@ -2,6 +2,7 @@
 list(APPEND CRPGS_TORCH_SOURCES
   src/raster/stages.cpp          # project / intersect_tiles / rasterize_to_pixels, fwd + bwd
   src/raster/tile_kernels.cpp    # per-tile pixel loops (forward, backward), runtime ISA dispatch
+  src/raster/project_kernels.cpp # the projection, four Gaussians per step, runtime ISA dispatch
   src/raster/reference.cpp       # float64 plain-libtorch reference (tests, bench baseline)
   src/raster/cpu_rasterizer.cpp  # autograd wrapper, the `cpu` component and its descriptor
 )
@@ -14,4 +15,8 @@ set_source_files_properties(src/raster/stages.cpp PROPERTIES
 # between inline helpers in the baseline clone.
 set_source_files_properties(src/raster/tile_kernels.cpp PROPERTIES
   COMPILE_OPTIONS "-fno-trapping-math;-ffp-contract=off;-Wno-psabi"
+  SKIP_PRECOMPILE_HEADERS ON)
+# The same, and errno-free sqrt so that the projection's lane-wise square roots vectorise.
+set_source_files_properties(src/raster/project_kernels.cpp PROPERTIES
+  COMPILE_OPTIONS "-fno-trapping-math;-ffp-contract=off;-fno-math-errno;-Wno-psabi"
   SKIP_PRECOMPILE_HEADERS ON)

@@ -3,6 +3,7 @@
 // count and reduced in a fixed order, so outputs are bitwise identical for any thread count.
 #include "raster/stages.h"
 
+#include "raster/project_kernels.h"
 #include "raster/tile_kernels.h"
 
 #include <algorithm>
@@ -92,6 +93,25 @@ CamD make_cam(const Camera& c, const RenderSettings& s) {
   d.R = c.R;
   d.t = c.t;
   return d;
+}
+
+kernels::ProjectCamera project_camera(const CamD& d) {
+  kernels::ProjectCamera c;
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) c.R[r][k] = d.R(r, k);
+    c.t[r] = d.t[r];
+  }
+  c.fx = d.fx;
+  c.fy = d.fy;
+  c.cx = d.cx;
+  c.cy = d.cy;
+  c.near_plane = d.near_plane;
+  c.far_plane = d.far_plane;
+  c.lim_x_pos = d.lim_x_pos;
+  c.lim_x_neg = d.lim_x_neg;
+  c.lim_y_pos = d.lim_y_pos;
+  c.lim_y_neg = d.lim_y_neg;
+  return c;
 }
 
 Mat3 quat_to_rot(double w, double x, double y, double z) {
@@ -309,26 +329,21 @@ ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
   float* con = out.conics.data_ptr<float>();
   float* dep = out.depths.data_ptr<float>();
   int32_t* rad = out.radii.data_ptr<int32_t>();
+  const kernels::ProjectCamera pc = project_camera(cam);
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
-    ProjState st;
+    thread_local std::vector<kernels::Projected> projected;
+    projected.resize(size_t(e - b));
+    kernels::project_range(pc, m, s, q, b, e, projected.data());
     for (int64_t i = b; i < e; ++i) {
-      if (!project_one(cam, m + 3 * i, s + 3 * i, q + 4 * i, st)) continue;
-      const double z = st.p.z();
-      const double mid = 0.5 * (st.cov(0, 0) + st.cov(1, 1));
-      const double lambda = mid + std::sqrt(std::max(0.0, mid * mid - st.det));
-      const double radius = std::min(kMaxRadius, std::ceil(3.0 * std::sqrt(lambda)));
-      const float u = float(cam.fx * st.p.x() / z + cam.cx);
-      const float v = float(cam.fy * st.p.y() / z + cam.cy);
-      if (!(radius > 0) || !std::isfinite(u) || !std::isfinite(v)) continue;
-      const TileRect tr = tile_rect(u, v, int(radius), cam.tiles_x, cam.tiles_y);
+      const kernels::Projected& o = projected[size_t(i - b)];
+      if (!o.ok || !(o.radius > 0) || !std::isfinite(o.u) || !std::isfinite(o.v)) continue;
+      const TileRect tr = tile_rect(o.u, o.v, int(o.radius), cam.tiles_x, cam.tiles_y);
       if (tr.x1 <= tr.x0 || tr.y1 <= tr.y0) continue;
-      m2[2 * i] = u;
-      m2[2 * i + 1] = v;
-      con[3 * i] = float(st.cov(1, 1) / st.det);
-      con[3 * i + 1] = float(-st.cov(0, 1) / st.det);
-      con[3 * i + 2] = float(st.cov(0, 0) / st.det);
-      dep[i] = float(z);
-      rad[i] = int32_t(radius);
+      m2[2 * i] = o.u;
+      m2[2 * i + 1] = o.v;
+      for (int k = 0; k < 3; ++k) con[3 * i + k] = o.conic[k];
+      dep[i] = o.depth;
+      rad[i] = int32_t(o.radius);
     }
   });
   return out;

@@ -1,0 +1,31 @@
+/// @file project_kernels.h
+/// @brief project_forward's per-Gaussian maths, four Gaussians at a time in double (one lane
+/// each); no libtorch header, so that it compiles for several instruction sets.
+#pragma once
+
+#include <cstdint>
+
+namespace crpgs::raster::kernels {
+
+/// The camera as the projection uses it (stages.cpp's CamD without Eigen).
+struct ProjectCamera {
+  double R[3][3], t[3];
+  double fx, fy, cx, cy, near_plane, far_plane;
+  double lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;  // clamps of x/z and y/z in the Jacobian
+};
+
+/// One Gaussian's projection: what project_forward keeps of it.
+struct Projected {
+  float u, v;      // pixel position of the mean
+  float conic[3];  // inverse 2D covariance (a, b, c)
+  float depth;     // camera-space z
+  double radius;   // ceil(3 sqrt(largest eigenvalue)), clamped; valid only if `ok`
+  bool ok;         // in the depth range with a positive-definite 2D covariance
+};
+
+/// Projects Gaussians [b, e) of means [N, 3], scales [N, 3] and quaternions [N, 4] (w, x, y, z)
+/// into out[0 .. e - b): the arithmetic of stages.cpp's project_one, lane-wise.
+void project_range(const ProjectCamera& cam, const float* means, const float* scales,
+                   const float* quats, int64_t b, int64_t e, Projected* out);
+
+}  // namespace crpgs::raster::kernels
