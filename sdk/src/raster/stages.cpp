@@ -137,7 +137,9 @@ struct ProjState {
 
 // Returns false when culled by depth or a non-positive-definite covariance. Computed in locals
 // and stored once at the end: Eigen's paired loads of members written a moment before stalled on
-// store forwarding (a fifth of this function's time).
+// store forwarding (a fifth of this function's time). project_backward's recomputation of the
+// forward, whose outputs kernels::project_range computes four at a time: the two must stay the
+// same maths (TODO: the backward in that kernel's form too, then this goes).
 inline __attribute__((always_inline)) bool project_one(const CamD& cam, const float* m,
                                                        const float* s, const float* q,
                                                        ProjState& st) {
