@@ -1,6 +1,6 @@
 /// @file project_kernels.h
-/// @brief project_forward's per-Gaussian maths, four Gaussians at a time in double (one lane
-/// each); no libtorch header, so that it compiles for several instruction sets.
+/// @brief The projection's per-Gaussian maths, forward and backward, four Gaussians at a time in
+/// double (one lane each); no libtorch header, so that it compiles for several instruction sets.
 #pragma once
 
 #include <cstdint>
@@ -24,8 +24,17 @@ struct Projected {
 };
 
 /// Projects Gaussians [b, e) of means [N, 3], scales [N, 3] and quaternions [N, 4] (w, x, y, z)
-/// into out[0 .. e - b): the arithmetic of stages.cpp's project_one, lane-wise.
+/// into out[0 .. e - b): rotation, 3D covariance, the clamped Jacobian (as 3DGS and gsplat
+/// clamp x/z), the dilated 2D covariance, its conic and 3-sigma radius.
 void project_range(const ProjectCamera& cam, const float* means, const float* scales,
                    const float* quats, int64_t b, int64_t e, Projected* out);
+
+/// project_backward's per-Gaussian work for [b, e): for each Gaussian with radii[i] > 0 that
+/// still projects, the gradients of its mean [N, 3], scales [N, 3] and quaternion [N, 4] from
+/// those of its 2D mean [N, 2], conic [N, 3] and depth [N]; the others are left untouched.
+void project_backward_range(const ProjectCamera& cam, const float* means, const float* scales,
+                            const float* quats, const int32_t* radii, const float* v_means2d,
+                            const float* v_conics, const float* v_depths, int64_t b, int64_t e,
+                            float* v_means, float* v_scales, float* v_quats);
 
 }  // namespace crpgs::raster::kernels

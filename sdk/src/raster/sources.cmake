@@ -2,7 +2,7 @@
 list(APPEND CRPGS_TORCH_SOURCES
   src/raster/stages.cpp          # project / intersect_tiles / rasterize_to_pixels, fwd + bwd
   src/raster/tile_kernels.cpp    # per-tile pixel loops (forward, backward), runtime ISA dispatch
-  src/raster/project_kernels.cpp # the projection, four Gaussians per step, runtime ISA dispatch
+  src/raster/project_kernels.cpp # projection forward + backward, 4 Gaussians per step, dispatch
   src/raster/reference.cpp       # float64 plain-libtorch reference (tests, bench baseline)
   src/raster/cpu_rasterizer.cpp  # autograd wrapper, the `cpu` component and its descriptor
 )

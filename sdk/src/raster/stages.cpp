@@ -24,8 +24,6 @@ namespace crpgs::raster {
 namespace {
 
 using Mat3 = Eigen::Matrix3d;
-using Mat2 = Eigen::Matrix2d;
-using Mat23 = Eigen::Matrix<double, 2, 3>;
 using Vec3 = Eigen::Vector3d;
 
 // Runs f(i) for i in [0, n); dynamic scheduling only changes who computes an item, not how.
@@ -112,74 +110,6 @@ kernels::ProjectCamera project_camera(const CamD& d) {
   c.lim_y_pos = d.lim_y_pos;
   c.lim_y_neg = d.lim_y_neg;
   return c;
-}
-
-Mat3 quat_to_rot(double w, double x, double y, double z) {
-  Mat3 r;
-  r << 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),  //
-      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),   //
-      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y);
-  return r;
-}
-
-// Everything the projection of one Gaussian computes, kept for its backward.
-struct ProjState {
-  Vec3 p;             // camera-space mean
-  double qn[4];       // normalised quaternion
-  double qnorm;       // |q| before normalisation
-  Mat3 Rq, M, Sigma;  // rotation, Rq * diag(s), 3D covariance
-  Mat23 J, T;         // Jacobian and J * R
-  double tx, ty;      // clamped x, y used in J
-  bool clamp_x, clamp_y;
-  Mat2 cov;  // dilated 2D covariance
-  double det;
-};
-
-// Returns false when culled by depth or a non-positive-definite covariance. Computed in locals
-// and stored once at the end: Eigen's paired loads of members written a moment before stalled on
-// store forwarding (a fifth of this function's time). project_backward's recomputation of the
-// forward, whose outputs kernels::project_range computes four at a time: the two must stay the
-// same maths (TODO: the backward in that kernel's form too, then this goes).
-inline __attribute__((always_inline)) bool project_one(const CamD& cam, const float* m,
-                                                       const float* s, const float* q,
-                                                       ProjState& st) {
-  const Vec3 p = cam.R * Vec3(m[0], m[1], m[2]) + cam.t;
-  const double z = p.z();
-  st.p = p;
-  if (!(z >= cam.near_plane && z <= cam.far_plane)) return false;
-  const double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-  const double qnorm = std::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
-  const double inv = 1.0 / std::max(qnorm, kQuatEps);
-  const double qn[4] = {qw * inv, qx * inv, qy * inv, qz * inv};
-  const Mat3 Rq = quat_to_rot(qn[0], qn[1], qn[2], qn[3]);
-  const Mat3 M = Rq * Vec3(s[0], s[1], s[2]).asDiagonal();
-  const Mat3 Sigma = M * M.transpose();
-  const double xz = p.x() / z, yz = p.y() / z;
-  const bool clamp_x = !(xz >= -cam.lim_x_neg && xz <= cam.lim_x_pos);
-  const bool clamp_y = !(yz >= -cam.lim_y_neg && yz <= cam.lim_y_pos);
-  const double tx = z * std::min(cam.lim_x_pos, std::max(-cam.lim_x_neg, xz));
-  const double ty = z * std::min(cam.lim_y_pos, std::max(-cam.lim_y_neg, yz));
-  Mat23 J;
-  J << cam.fx / z, 0, -cam.fx * tx / (z * z), 0, cam.fy / z, -cam.fy * ty / (z * z);
-  const Mat23 T = J * cam.R;
-  Mat2 cov = T * Sigma * T.transpose();
-  cov(0, 0) += kCovDilation;
-  cov(1, 1) += kCovDilation;
-  const double det = cov(0, 0) * cov(1, 1) - cov(0, 1) * cov(1, 0);
-  st.qnorm = qnorm;
-  for (int k = 0; k < 4; ++k) st.qn[k] = qn[k];
-  st.Rq = Rq;
-  st.M = M;
-  st.Sigma = Sigma;
-  st.J = J;
-  st.T = T;
-  st.tx = tx;
-  st.ty = ty;
-  st.clamp_x = clamp_x;
-  st.clamp_y = clamp_y;
-  st.cov = cov;
-  st.det = det;
-  return std::isfinite(det) && det > 0;
 }
 
 using kernels::Packed;
@@ -377,71 +307,9 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
   float* om = g.v_means.data_ptr<float>();
   float* os = g.v_scales.data_ptr<float>();
   float* oq = g.v_rotations.data_ptr<float>();
+  const kernels::ProjectCamera pc = project_camera(cam);
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
-    ProjState st;
-    for (int64_t i = b; i < e; ++i) {
-      if (rad[i] <= 0) continue;
-      if (!project_one(cam, m + 3 * i, sc + 3 * i, q + 4 * i, st)) continue;
-      const double x = st.p.x(), y = st.p.y(), z = st.p.z();
-      Vec3 v_p = Vec3::Zero();
-      // Screen-space mean and depth.
-      const double vu = vm2[2 * i], vv = vm2[2 * i + 1];
-      v_p.x() += cam.fx / z * vu;
-      v_p.y() += cam.fy / z * vv;
-      v_p.z() += -cam.fx * x / (z * z) * vu - cam.fy * y / (z * z) * vv + vdep[i];
-      // Conic = cov^-1: v_cov = -K G K with G the symmetric gradient of (a, b, c).
-      Mat2 K;
-      K << st.cov(1, 1), -st.cov(0, 1), -st.cov(1, 0), st.cov(0, 0);
-      K /= st.det;
-      Mat2 G;
-      G << vcon[3 * i], 0.5 * vcon[3 * i + 1], 0.5 * vcon[3 * i + 1], vcon[3 * i + 2];
-      const Mat2 v_cov = -K * G * K;
-      // cov = T Sigma T^T (+ dilation), T = J R.
-      const Mat23 v_T = 2.0 * v_cov * st.T * st.Sigma;
-      const Mat3 v_Sigma = st.T.transpose() * v_cov * st.T;
-      const Mat23 v_J = v_T * cam.R.transpose();
-      // J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]].
-      const double z2 = z * z, z3 = z2 * z;
-      v_p.z() += -cam.fx / z2 * v_J(0, 0) - cam.fy / z2 * v_J(1, 1) +
-                 2 * cam.fx * st.tx / z3 * v_J(0, 2) + 2 * cam.fy * st.ty / z3 * v_J(1, 2);
-      const double v_tx = -cam.fx / z2 * v_J(0, 2), v_ty = -cam.fy / z2 * v_J(1, 2);
-      if (st.clamp_x) {
-        v_p.z() += st.tx / z * v_tx;  // tx = z * limit
-      } else {
-        v_p.x() += v_tx;
-      }
-      if (st.clamp_y) {
-        v_p.z() += st.ty / z * v_ty;
-      } else {
-        v_p.y() += v_ty;
-      }
-      const Vec3 v_m = cam.R.transpose() * v_p;
-      // Sigma = M M^T, M = Rq diag(s).
-      const Mat3 v_M = 2.0 * v_Sigma * st.M;
-      for (int k = 0; k < 3; ++k) {
-        om[3 * i + k] = float(v_m[k]);
-        os[3 * i + k] = float(st.Rq.col(k).dot(v_M.col(k)));
-      }
-      const Mat3 Gr = v_M * Vec3(sc[3 * i], sc[3 * i + 1], sc[3 * i + 2]).asDiagonal();
-      const double w = st.qn[0], qx = st.qn[1], qy = st.qn[2], qz = st.qn[3];
-      double vq[4];
-      vq[0] = 2 * (-qz * Gr(0, 1) + qy * Gr(0, 2) + qz * Gr(1, 0) - qx * Gr(1, 2) - qy * Gr(2, 0) +
-                   qx * Gr(2, 1));
-      vq[1] = 2 * (qy * Gr(0, 1) + qz * Gr(0, 2) + qy * Gr(1, 0) - 2 * qx * Gr(1, 1) -
-                   w * Gr(1, 2) + qz * Gr(2, 0) + w * Gr(2, 1) - 2 * qx * Gr(2, 2));
-      vq[2] = 2 * (-2 * qy * Gr(0, 0) + qx * Gr(0, 1) + w * Gr(0, 2) + qx * Gr(1, 0) +
-                   qz * Gr(1, 2) - w * Gr(2, 0) + qz * Gr(2, 1) - 2 * qy * Gr(2, 2));
-      vq[3] = 2 * (-2 * qz * Gr(0, 0) - w * Gr(0, 1) + qx * Gr(0, 2) + w * Gr(1, 0) -
-                   2 * qz * Gr(1, 1) + qy * Gr(1, 2) + qx * Gr(2, 0) + qy * Gr(2, 1));
-      // qn = q / max(|q|, eps): project out the radial part when the norm is not clamped.
-      if (st.qnorm > kQuatEps) {
-        const double dot =
-            st.qn[0] * vq[0] + st.qn[1] * vq[1] + st.qn[2] * vq[2] + st.qn[3] * vq[3];
-        for (int k = 0; k < 4; ++k) oq[4 * i + k] = float((vq[k] - st.qn[k] * dot) / st.qnorm);
-      } else {
-        for (int k = 0; k < 4; ++k) oq[4 * i + k] = float(vq[k] / kQuatEps);
-      }
-    }
+    kernels::project_backward_range(pc, m, sc, q, rad, vm2, vcon, vdep, b, e, om, os, oq);
   });
   return g;
 }
