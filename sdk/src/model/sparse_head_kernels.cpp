@@ -34,12 +34,19 @@ void forward(const Layer& l, int64_t g_begin, int64_t g_end, float* y) {
     const int64_t s = l.slot[g];
     const float* h = l.h + l.row[g] * H;
     const float* w = l.w2_lanes + s * H * kLanes;
-    vf acc{};
-    for (int64_t k = 0; k < H; ++k) {
+    // Four partial sums over the hidden units, so that four multiply-adds are in flight (one
+    // chain of H dependent adds was the kernel's limit), summed in a fixed order.
+    vf part[4] = {};
+    auto add = [&](int64_t k, vf& a) {
       vf wk;
       __builtin_memcpy(&wk, w + k * kLanes, sizeof(vf));
-      acc += h[k] * wk;
-    }
+      a += h[k] * wk;
+    };
+    int64_t k = 0;
+    for (; k + 4 <= H; k += 4)
+      for (int j = 0; j < 4; ++j) add(k + j, part[j]);
+    for (; k < H; ++k) add(k, part[0]);
+    const vf acc = (part[0] + part[1]) + (part[2] + part[3]);
     float* out = y + g * O;
     for (int o = 0; o < O; ++o) out[o] = acc[o] + l.b2[s * O + o];
   }
