@@ -10,7 +10,6 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
-#include <memory>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -463,50 +462,42 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
   const int32_t* ids = in.ids;
   const int64_t m = isect.gaussian_ids.numel();
   constexpr int kGradSlots = kernels::kGradSlots;
-  // Uninitialised: backward_tile writes every row of its tile, zeros included.
-  const std::unique_ptr<float[]> entry(new float[static_cast<size_t>(m) * kGradSlots]);
+  std::vector<float> entry(static_cast<size_t>(m) * kGradSlots, 0.f);
   const std::vector<int32_t> order = tiles_by_work(in.offsets, isect.tiles_x * isect.tiles_y);
   parallel_items(int64_t(order.size()), threads,
-                 [&](int64_t t) { kernels::backward_tile(order[t], in, bi, entry.get()); });
+                 [&](int64_t t) { kernels::backward_tile(order[t], in, bi, entry.data()); });
   RasterizeGrads g;
-  g.v_means2d = at::empty({n, 2}, fopt);
-  g.v_conics = at::empty({n, 3}, fopt);
-  g.v_opacities = at::empty({n}, fopt);
-  g.v_colors = at::empty({n, 3}, fopt);
-  g.v_depths = at::empty({n}, fopt);
+  g.v_means2d = at::zeros({n, 2}, fopt);
+  g.v_conics = at::zeros({n, 3}, fopt);
+  g.v_opacities = at::zeros({n}, fopt);
+  g.v_colors = at::zeros({n, 3}, fopt);
+  g.v_depths = at::zeros({n}, fopt);
   float* om = g.v_means2d.data_ptr<float>();
   float* oc = g.v_conics.data_ptr<float>();
   float* oo = g.v_opacities.data_ptr<float>();
   float* ocol = g.v_colors.data_ptr<float>();
   float* od = g.v_depths.data_ptr<float>();
   // Fixed-order reduction over entries (tile-major) for every Gaussian, independent of the
-  // thread count: each part owns a range of Gaussians and scans all entries. The sums go to one
-  // row of kGradSlots per Gaussian (one cache line, where the five outputs are five lines apart)
-  // and are then split into the outputs in order.
-  const std::unique_ptr<float[]> sums(new float[static_cast<size_t>(n) * kGradSlots]);
+  // thread count: each part owns a range of Gaussians and scans all entries. (A per-Gaussian
+  // row of sums in one extra buffer measured a little faster in training but faulted pages on
+  // every call under glibc's default allocator: bench/results/raster.md, session 11.)
   const int parts = int(std::max<int64_t>(1, std::min<int64_t>(threads, m / 65536)));
   parallel_items(parts, threads, [&](int64_t p) {
     const int64_t lo = n * p / parts, hi = n * (p + 1) / parts;
-    std::fill(sums.get() + lo * kGradSlots, sums.get() + hi * kGradSlots, 0.f);
     for (int64_t k = 0; k < m; ++k) {
       const int64_t i = ids[k];
       if (i < lo || i >= hi) continue;
-      const float* e = entry.get() + k * kGradSlots;
-      float* a = sums.get() + i * kGradSlots;
-      for (int s = 0; s < kGradSlots; ++s) a[s] += e[s];
-    }
-    for (int64_t i = lo; i < hi; ++i) {
-      const float* a = sums.get() + i * kGradSlots;
-      om[2 * i] = a[0];
-      om[2 * i + 1] = a[1];
-      oc[3 * i] = a[2];
-      oc[3 * i + 1] = a[3];
-      oc[3 * i + 2] = a[4];
-      oo[i] = a[5];
-      ocol[3 * i] = a[6];
-      ocol[3 * i + 1] = a[7];
-      ocol[3 * i + 2] = a[8];
-      od[i] = a[9];
+      const float* e = entry.data() + k * kGradSlots;
+      om[2 * i] += e[0];
+      om[2 * i + 1] += e[1];
+      oc[3 * i] += e[2];
+      oc[3 * i + 1] += e[3];
+      oc[3 * i + 2] += e[4];
+      oo[i] += e[5];
+      ocol[3 * i] += e[6];
+      ocol[3 * i + 1] += e[7];
+      ocol[3 * i + 2] += e[8];
+      od[i] += e[9];
     }
   });
   return g;

@@ -391,10 +391,6 @@ CRPGS_INLINE void backward_impl(int tile, const TileInputs& in, const BackwardIn
     kmax = std::max(kmax, chunk_last[i]);
   }
   const int start = in.offsets[tile];
-  // The tile's rows of entry_grads, zeroed here (in parallel, and where they are written next)
-  // rather than by the caller: entries without a contribution keep 0.
-  std::fill(entry_grads + int64_t(start) * kGradSlots,
-            entry_grads + int64_t(in.offsets[tile + 1]) * kGradSlots, 0.f);
   std::vector<Entry>& es = tl_entries;
   const int n = gather(in, tile, tg, kmax, es);
   for (int j = n - 1; j >= 0; --j) {

@@ -57,7 +57,7 @@ constexpr int kGradSlots = 10;
 void forward_tile(int tile, const TileInputs& in, const ForwardOutputs& out);
 
 /// Back-to-front gradients of one tile: writes kGradSlots floats for each of the tile's entries
-/// (entry_grads is [M, kGradSlots]; entries without a contribution get 0).
+/// (entry_grads is [M, kGradSlots], zero-initialised; entries without a contribution stay 0).
 void backward_tile(int tile, const TileInputs& in, const BackwardInputs& bw, float* entry_grads);
 
 }  // namespace crpgs::raster::kernels
