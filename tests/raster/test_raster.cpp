@@ -362,8 +362,6 @@ TEST(RasterStages, IntersectListsEveryOverlapSortedByDepth) {
   }
 }
 
-// Enough Gaussians that the fill runs in two ranges, many equal depths (ties go by index),
-// negative and zero depths, and culled ones: every tile's list equals a sort by (depth, index).
 TEST(RasterStages, TileRectIsTheClampedFloorOfTheBox) {
   // The tiles [floor((m - r) / 16), floor((m + r + 15) / 16)) clamped to the grid, for means on
   // and beside tile borders, off-image on either side, far away, and not finite.
@@ -385,6 +383,8 @@ TEST(RasterStages, TileRectIsTheClampedFloorOfTheBox) {
   }
 }
 
+// Enough Gaussians that the fill runs in two ranges, many equal depths (ties go by index),
+// negative and zero depths, and culled ones: every tile's list equals a sort by (depth, index).
 TEST(RasterStages, IntersectOrderHoldsForTiesNegativeDepthsAndTwoRanges) {
   constexpr int64_t n = 20000;
   constexpr int W = 96, H = 64;

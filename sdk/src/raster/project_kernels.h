@@ -7,7 +7,7 @@
 
 namespace crpgs::raster::kernels {
 
-/// The camera as the projection uses it (stages.cpp's CamD without Eigen).
+/// The camera as the projection uses it (stages.cpp make_cam).
 struct ProjectCamera {
   double R[3][3], t[3];
   double fx, fy, cx, cy, near_plane, far_plane;

@@ -14,16 +14,12 @@
 #include <utility>
 #include <vector>
 
-#include <Eigen/Dense>
 #ifdef _OPENMP
 #include <omp.h>
 #endif
 
 namespace crpgs::raster {
 namespace {
-
-using Mat3 = Eigen::Matrix3d;
-using Vec3 = Eigen::Vector3d;
 
 // Runs f(i) for i in [0, n); dynamic scheduling only changes who computes an item, not how.
 template <typename F>
@@ -59,19 +55,16 @@ void check_float(const at::Tensor& t, const char* name, int64_t cols) {
   }
 }
 
-// Camera constants in double; the tan limits clamp x/z for the Jacobian as 3DGS and gsplat do.
-struct CamD {
-  double fx, fy, cx, cy, near_plane, far_plane;
-  double lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;
-  int width, height, tiles_x, tiles_y;
-  Mat3 R;
-  Vec3 t;
-};
-
-CamD make_cam(const Camera& c, const RenderSettings& s) {
+// The camera as the projection kernels take it, in double; the tan limits clamp x/z for the
+// Jacobian as 3DGS and gsplat do.
+kernels::ProjectCamera make_cam(const Camera& c, const RenderSettings& s) {
   TORCH_CHECK(c.width > 0 && c.height > 0 && c.fx > 0 && c.fy > 0,
               "rasterizer: camera needs positive size and focal lengths");
-  CamD d;
+  kernels::ProjectCamera d;
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) d.R[r][k] = c.R(r, k);
+    d.t[r] = c.t[r];
+  }
   d.fx = c.fx;
   d.fy = c.fy;
   d.cx = c.cx;
@@ -83,32 +76,7 @@ CamD make_cam(const Camera& c, const RenderSettings& s) {
   d.lim_x_neg = c.cx / c.fx + 0.3 * tan_x;
   d.lim_y_pos = (c.height - c.cy) / c.fy + 0.3 * tan_y;
   d.lim_y_neg = c.cy / c.fy + 0.3 * tan_y;
-  d.width = c.width;
-  d.height = c.height;
-  d.tiles_x = (c.width + kTileSize - 1) / kTileSize;
-  d.tiles_y = (c.height + kTileSize - 1) / kTileSize;
-  d.R = c.R;
-  d.t = c.t;
   return d;
-}
-
-kernels::ProjectCamera project_camera(const CamD& d) {
-  kernels::ProjectCamera c;
-  for (int r = 0; r < 3; ++r) {
-    for (int k = 0; k < 3; ++k) c.R[r][k] = d.R(r, k);
-    c.t[r] = d.t[r];
-  }
-  c.fx = d.fx;
-  c.fy = d.fy;
-  c.cx = d.cx;
-  c.cy = d.cy;
-  c.near_plane = d.near_plane;
-  c.far_plane = d.far_plane;
-  c.lim_x_pos = d.lim_x_pos;
-  c.lim_x_neg = d.lim_x_neg;
-  c.lim_y_pos = d.lim_y_pos;
-  c.lim_y_neg = d.lim_y_neg;
-  return c;
 }
 
 using kernels::Packed;
@@ -246,7 +214,9 @@ ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
   const int64_t n = means.size(0);
   TORCH_CHECK(scales.size(0) == n && rotations.size(0) == n,
               "rasterizer: means, scales and rotations must have the same N");
-  const CamD cam = make_cam(camera, settings);
+  const kernels::ProjectCamera cam = make_cam(camera, settings);
+  const int tiles_x = (camera.width + kTileSize - 1) / kTileSize;
+  const int tiles_y = (camera.height + kTileSize - 1) / kTileSize;
   const auto fopt = means.options();
   ProjectResult out;
   out.means2d = at::zeros({n, 2}, fopt);
@@ -260,15 +230,14 @@ ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
   float* con = out.conics.data_ptr<float>();
   float* dep = out.depths.data_ptr<float>();
   int32_t* rad = out.radii.data_ptr<int32_t>();
-  const kernels::ProjectCamera pc = project_camera(cam);
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
     thread_local std::vector<kernels::Projected> projected;
     projected.resize(size_t(e - b));
-    kernels::project_range(pc, m, s, q, b, e, projected.data());
+    kernels::project_range(cam, m, s, q, b, e, projected.data());
     for (int64_t i = b; i < e; ++i) {
       const kernels::Projected& o = projected[size_t(i - b)];
       if (!o.ok || !(o.radius > 0) || !std::isfinite(o.u) || !std::isfinite(o.v)) continue;
-      const TileRect tr = tile_rect(o.u, o.v, int(o.radius), cam.tiles_x, cam.tiles_y);
+      const TileRect tr = tile_rect(o.u, o.v, int(o.radius), tiles_x, tiles_y);
       if (tr.x1 <= tr.x0 || tr.y1 <= tr.y0) continue;
       m2[2 * i] = o.u;
       m2[2 * i + 1] = o.v;
@@ -291,7 +260,7 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
   RenderSettings s;  // culling is read from fwd.radii; near/far are not needed here
   s.near_plane = -std::numeric_limits<float>::infinity();
   s.far_plane = std::numeric_limits<float>::infinity();
-  const CamD cam = make_cam(camera, s);
+  const kernels::ProjectCamera cam = make_cam(camera, s);
   ProjectGrads g;
   g.v_means = at::zeros({n, 3}, means.options());
   g.v_scales = at::zeros({n, 3}, means.options());
@@ -306,9 +275,8 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
   float* om = g.v_means.data_ptr<float>();
   float* os = g.v_scales.data_ptr<float>();
   float* oq = g.v_rotations.data_ptr<float>();
-  const kernels::ProjectCamera pc = project_camera(cam);
   parallel_chunks(n, threads, [&](int64_t b, int64_t e) {
-    kernels::project_backward_range(pc, m, sc, q, rad, vm2, vcon, vdep, b, e, om, os, oq);
+    kernels::project_backward_range(cam, m, sc, q, rad, vm2, vcon, vdep, b, e, om, os, oq);
   });
   return g;
 }
