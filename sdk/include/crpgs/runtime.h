@@ -13,15 +13,13 @@ namespace crpgs {
 int resolve_threads(int requested);
 
 /// Sets libtorch's intra-op threads and OpenBLAS's threads (when OpenBLAS is the BLAS) to
-/// resolve_threads(requested). The first call also picks OpenBLAS's AVX-512 GEMM kernels
-/// (SkylakeX) where Debian's OpenBLAS 0.3.21 falls back to its AVX2 ones (Haswell / Zen) on a
-/// CPU with AVX-512 (AMD Zen 4, which it does not know): 1.3-1.6x faster GEMMs of the MLPs'
-/// shapes. Not when OPENBLAS_CORETYPE is set. Make that first call before any other thread
-/// runs a GEMM: the kernel table is swapped in place.
+/// resolve_threads(requested).
 void set_compute_threads(int requested);
 
-/// The BLAS kernels in use, e.g. "OpenBLAS SkylakeX"; "unknown" when the BLAS is not a
-/// DYNAMIC_ARCH OpenBLAS.
+/// The BLAS kernels in use, e.g. "OpenBLAS Cooperlake": OpenBLAS picks them for the CPU at
+/// start-up unless OPENBLAS_CORETYPE names them (AVX-512 kernels run the MLPs' GEMMs ~1.5x
+/// faster than the AVX2 "Haswell" ones on AMD Zen 4; bench BM_MlpGemm). "unknown" when the
+/// BLAS is not OpenBLAS.
 std::string blas_kernels();
 
 /// Sets both pools for a scope and restores what they were.

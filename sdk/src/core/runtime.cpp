@@ -6,9 +6,6 @@
 #include <malloc.h>
 
 #include <algorithm>
-#include <cstdlib>
-#include <cstring>
-#include <mutex>
 #include <string>
 #include <thread>
 
@@ -21,52 +18,18 @@ namespace {
 struct OpenBlas {
   void (*set)(int) = nullptr;
   int (*get)() = nullptr;
-  // A DYNAMIC_ARCH build's kernel table (absent otherwise).
-  char* (*corename)() = nullptr;
-  void (*dynamic_init)() = nullptr;
-  void (*dynamic_quit)() = nullptr;
+  char* (*corename)() = nullptr;  // the kernels a DYNAMIC_ARCH build picked
   OpenBlas() {
     set = reinterpret_cast<void (*)(int)>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
     get = reinterpret_cast<int (*)()>(dlsym(RTLD_DEFAULT, "openblas_get_num_threads"));
     if (!set || !get) set = nullptr, get = nullptr;
     corename = reinterpret_cast<char* (*)()>(dlsym(RTLD_DEFAULT, "openblas_get_corename"));
-    dynamic_init = reinterpret_cast<void (*)()>(dlsym(RTLD_DEFAULT, "gotoblas_dynamic_init"));
-    dynamic_quit = reinterpret_cast<void (*)()>(dlsym(RTLD_DEFAULT, "gotoblas_dynamic_quit"));
-    if (!corename || !dynamic_init || !dynamic_quit)
-      corename = nullptr, dynamic_init = nullptr, dynamic_quit = nullptr;
   }
 };
 
 const OpenBlas& openblas() {
   static const OpenBlas blas;
   return blas;
-}
-
-bool has_avx512_for_openblas() {
-#if defined(__x86_64__) && defined(__GNUC__)
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
-         __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
-         __builtin_cpu_supports("avx512cd");
-#else
-  return false;
-#endif
-}
-
-void use_avx512_blas_kernels_once() {
-  static std::once_flag once;
-  std::call_once(once, [] {
-    const OpenBlas& blas = openblas();
-    // The user's OPENBLAS_CORETYPE, if any, stands.
-    if (!blas.corename || std::getenv("OPENBLAS_CORETYPE") || !has_avx512_for_openblas()) return;
-    const std::string core = blas.corename();
-    if (core != "Haswell" && core != "Zen") return;
-    // Re-runs the library's own start-up choice with the variable set, as if the user had set it.
-    setenv("OPENBLAS_CORETYPE", "SkylakeX", 0);
-    blas.dynamic_quit();
-    blas.dynamic_init();
-    unsetenv("OPENBLAS_CORETYPE");
-  });
 }
 
 void set_pools(int torch_threads, int blas_threads) {
@@ -81,7 +44,6 @@ int resolve_threads(int requested) {
 }
 
 void set_compute_threads(int requested) {
-  use_avx512_blas_kernels_once();
   const int n = resolve_threads(requested);
   set_pools(n, n);
 }
