@@ -1,4 +1,4 @@
-list(APPEND CRPGS_TORCH_TEST_SOURCES codec/test_codec.cpp codec/test_decode_cli.cpp)
+list(APPEND CRPGS_TORCH_TEST_SOURCES codec/test_codec.cpp codec/test_portable_math.cpp codec/test_decode_cli.cpp)
 # test_decode_cli runs `crpgs decode` / `crpgs render` in fresh processes (it skips, saying why,
 # when the executable is absent).
 if(TARGET crpgs_cli)

@@ -14,6 +14,7 @@
 #include "../plugins/context/hash_grid/binary_grid.h"
 #include "../plugins/context/hash_grid/hash_grid_kernels.h"
 #include "crpgs/context_model.h"
+#include "crpgs/portable_math.h"
 #include "plugins/plugin_test_util.h"
 
 namespace crpgs {
@@ -243,6 +244,33 @@ TEST(HashGridComponent, PartialForwardMatchesForward) {
   const auto w2_grad = params[3].grad();
   EXPECT_GT(w2_grad.slice(0, 0, 172).abs().sum().item<float>(), 0.f);
   EXPECT_GT(w2_grad.slice(0, 172).abs().sum().item<float>(), 0.f);
+}
+
+// The codec's arithmetic: the grid lookup (portable already) and the MLP as portable_linear,
+// bit for bit; the same function as forward() up to rounding.
+TEST(HashGridComponent, PortableForwardIsTheFixedOrderMlpBitForBit) {
+  auto grid = make_grid(", hidden_dim: 24");
+  ASSERT_TRUE(grid);
+  const auto params = grid->parameters();
+  {
+    torch::NoGradGuard no_grad;
+    torch::manual_seed(21);
+    params[0].uniform_(-1, 1);  // a trained table's signs, not the init's ±1e-4
+    for (size_t i = 1; i < params.size(); ++i) params[i].normal_(0, 0.3);
+  }
+  const auto pos = random_positions(257, torch::kFloat, 13);
+  const auto got = grid->forward_portable(pos);
+  ASSERT_EQ(got.sizes(), torch::IntArrayRef({257, 175}));
+  EXPECT_FALSE(got.requires_grad());
+  torch::Tensor want;
+  {
+    torch::NoGradGuard no_grad;
+    const auto feat = hash_grid::grid_lookup(hac_spec(), pos, params[0].detach(), true);
+    const auto h = torch::relu(portable_linear(feat, params[1], params[2]));
+    want = portable_linear(h, params[3], params[4]);
+  }
+  EXPECT_TRUE(torch::equal(got, want));
+  EXPECT_TRUE(torch::allclose(got, grid->forward(pos).detach(), 1e-4, 1e-4));
 }
 
 TEST(ContextModelDefault, PartialForwardSlicesForward) {

@@ -11,6 +11,7 @@
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
 #include "crpgs/plugin.h"
+#include "crpgs/portable_math.h"
 
 namespace crpgs {
 namespace {
@@ -62,6 +63,17 @@ class HashGridContext final : public ContextModel {
 
   torch::Tensor forward(const torch::Tensor& positions01) override {
     return l2_->forward(hidden(positions01));
+  }
+
+  /// The grid lookup is already portable (hash_grid_kernels.cpp: fixed order, no contraction);
+  /// the MLP runs in portable_linear, its ReLU is exact. On the CPU whatever the device.
+  torch::Tensor forward_portable(const torch::Tensor& positions01) override {
+    torch::NoGradGuard no_grad;
+    check_positions(positions01);
+    auto cpu = [](const torch::Tensor& t) { return t.detach().to(torch::kCPU); };
+    const auto feat = hash_grid::grid_lookup(spec_, cpu(positions01), cpu(table_), grid_.binarize);
+    const auto h = torch::relu(portable_linear(feat, cpu(l1_->weight), cpu(l1_->bias)));
+    return portable_linear(h, cpu(l2_->weight), cpu(l2_->bias));
   }
 
   PartialOutput forward_partial(const torch::Tensor& positions01, int64_t tail) override {
@@ -124,9 +136,13 @@ class HashGridContext final : public ContextModel {
   }
 
   /// mlp_grid's hidden activations: relu(l1(grid(x))).
-  torch::Tensor hidden(const torch::Tensor& positions01) {
+  static void check_positions(const torch::Tensor& positions01) {
     TORCH_CHECK(positions01.dim() == 2 && positions01.size(1) == 3,
                 "hash_grid: positions must be [N, 3], got ", positions01.sizes());
+  }
+
+  torch::Tensor hidden(const torch::Tensor& positions01) {
+    check_positions(positions01);
     const auto feat = hash_grid::grid_lookup(spec_, positions01, table_, grid_.binarize);
     return torch::relu(l1_->forward(feat));  // feat: [N, grid output_dim]
   }

@@ -12,12 +12,11 @@
 #include <string>
 #include <unordered_map>
 
+#include "crpgs/portable_math.h"
+
 namespace crpgs::gaussian_coding {
 namespace {
 
-constexpr double kLn2Hi = 6.93147180369123816490e-01;  // fdlibm split of ln 2
-constexpr double kLn2Lo = 1.90821492927058770002e-10;
-constexpr double kInvLn2 = 1.44269504088896338700e+00;
 constexpr double kSqrtHalf = 0.70710678118654752440;
 constexpr double kInvSqrtPi = 0.56418958354775628695;
 constexpr double kTailZ = 6.0;  // table half-width in scales: two-sided tail mass ≈ 2e-9
@@ -33,13 +32,13 @@ double erfc_pos(double t) {
       sum += term;
       if (term < sum * 1e-17) break;
     }
-    return 1.0 - 2.0 * kInvSqrtPi * deterministic_exp(-t * t) * sum;
+    return 1.0 - 2.0 * kInvSqrtPi * portable_exp(-t * t) * sum;
   }
   // Continued fraction erfc(t) = exp(-t^2)/sqrt(pi) / (t + (1/2)/(t + 1/(t + (3/2)/(t + ...)))).
   double f = t;
   const int depth = t < 3.5 ? 120 : (t < 6.0 ? 60 : 30);
   for (int n = depth; n >= 1; --n) f = t + (0.5 * double(n)) / f;
-  return deterministic_exp(-t * t) * kInvSqrtPi / f;
+  return portable_exp(-t * t) * kInvSqrtPi / f;
 }
 
 /// Level boundaries: boundary k separates level k and k + 1 (geometric midpoint).
@@ -95,17 +94,6 @@ StatusOr<Plan> make_plan(const float* mean, const float* scale, const float* q, 
 }
 
 }  // namespace
-
-double deterministic_exp(double x) {
-  if (std::isnan(x)) return x;
-  if (x < -745.2) return 0.0;
-  if (x > 709.7) return std::numeric_limits<double>::infinity();
-  const double k = std::nearbyint(x * kInvLn2);
-  const double r = (x - k * kLn2Hi) - k * kLn2Lo;  // |r| <= ~0.347
-  double p = 1.0;
-  for (int i = 17; i >= 1; --i) p = 1.0 + p * r / double(i);  // Taylor, Horner form
-  return std::ldexp(p, int(k));
-}
 
 double normal_upper_tail(double x) {
   if (std::isnan(x)) return x;

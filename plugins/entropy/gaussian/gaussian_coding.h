@@ -38,8 +38,6 @@ inline constexpr uint32_t kChunkSize = 10000;  ///< symbols per independently de
 double normal_upper_tail(double x);
 /// P(a <= N(0,1) < b), a <= b, evaluated in the tail nearer to the interval for precision.
 double normal_interval(double a, double b);
-/// exp(x) with IEEE basic operations only.
-double deterministic_exp(double x);
 
 /// Scale (in steps) of level k, exactly 2^((k + kLowestLevelExp) / 8) up to rounding.
 double scale_level_value(int level);

@@ -69,6 +69,10 @@ struct CodedModel {
   std::string geometry = "draco";  ///< "draco" or "raw"
   std::string link_coding = "compact";  ///< "compact" or "paper" (the LINK section's coding)
   bool leaf_residual = false;  ///< the leaf MLP's form (from the config `rate.leaf_residual`)
+  /// How the entropy parameters are computed: kPortable in files of format 1.1 and later (the
+  /// encoder always writes 1.1); kFast for 1.0 files, which decode only where the same BLAS
+  /// kernels run as when they were encoded.
+  Arithmetic arithmetic = Arithmetic::kPortable;
 };
 
 /// Roots, free anchors and leaves of a link vector [N] (counts).

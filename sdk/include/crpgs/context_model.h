@@ -31,6 +31,13 @@ class ContextModel : public Component {
   virtual torch::Tensor forward(const torch::Tensor& positions01) {
     return torch::zeros({positions01.size(0), 0}, positions01.options());
   }
+  /// forward() in portable arithmetic (crpgs/portable_math.h: the same bits on every machine),
+  /// which the codec uses for the entropy parameters. The default is forward(): a context whose
+  /// forward() uses BLAS or vectorised ATen maths must override it, or its bitstreams decode
+  /// only where the same kernels run.
+  virtual torch::Tensor forward_portable(const torch::Tensor& positions01) {
+    return forward(positions01);
+  }
   /// forward() as training needs it: the last `tail` columns for every row, the whole row only
   /// for the rows asked for later. Every visible anchor needs its quantisation steps, only the
   /// rate subset (5 %) its means and scales, so a grid context skips ~98 % of its output layer.

@@ -28,20 +28,29 @@ struct EntropyParams {
   torch::Tensor q_f, q_s, q_o;  ///< [N, 1] adaptive steps Q0·(1 + tanh a), in (0, 2·Q0)
 };
 
+/// How entropy parameters are computed. kFast: BLAS and ATen, differentiable (training), last
+/// bits depend on the machine. kPortable: crpgs/portable_math.h, the same bits everywhere (the
+/// codec since format 1.1; 1.0 files were coded with kFast and decode only where the same
+/// kernels run).
+enum class Arithmetic { kFast, kPortable };
+
 /// Splits a context output row ([N, layout.width()]) into EntropyParams. σ outputs are returned
 /// raw (the entropy model clamps them).
 EntropyParams split_entropy_params(const torch::Tensor& context_out,
-                                   const EntropyParamLayout& layout, const QuantSteps& q0);
+                                   const EntropyParamLayout& layout, const QuantSteps& q0,
+                                   Arithmetic arithmetic = Arithmetic::kFast);
 
 /// Sets p's q_f, q_s, q_o from the step-adjustment columns [N, kStepColumns] (the layout's last).
-void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p);
+void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p,
+                     Arithmetic arithmetic = Arithmetic::kFast);
 
 /// Evaluates `context` on positions01 in fixed chunks of `chunk` rows, in order, and splits.
-/// The codec calls it with the same chunking on both sides, so GEMM shapes (and therefore
-/// rounding) are identical in the encoder and the decoder.
+/// The codec calls it with the same chunking on both sides; with kPortable (context.forward_
+/// portable, portable tanh) encoder and decoder get the same bits on any machine.
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
-                                     int64_t chunk = 3000);
+                                     int64_t chunk = 3000,
+                                     Arithmetic arithmetic = Arithmetic::kPortable);
 
 /// CRP-GS's leaf-feature mean (method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
 /// Linear(Dc + 6 → H) → ReLU → Linear(H → Dc), positions normalised by the anchor bounds; with
@@ -64,9 +73,10 @@ StatusOr<LeafMlp> leaf_mlp_from(const std::map<std::string, torch::Tensor>& mlps
 
 /// μ of the leaves' features. root_features: the roots' decoded (quantised) features [L, Dc];
 /// root_pos01, leaf_pos01: [L, 3]; base_mu: the base model's μ_f of the leaves [L, Dc] (used with
-/// `residual`). Differentiable; the codec calls it in fixed chunks on both sides.
+/// `residual`). Differentiable with kFast; the codec calls it in fixed chunks on both sides.
 torch::Tensor leaf_feature_mean(const LeafMlp& mlp, const torch::Tensor& root_features,
                                 const torch::Tensor& root_pos01, const torch::Tensor& leaf_pos01,
-                                const torch::Tensor& base_mu);
+                                const torch::Tensor& base_mu,
+                                Arithmetic arithmetic = Arithmetic::kFast);
 
 }  // namespace crpgs

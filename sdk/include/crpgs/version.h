@@ -10,7 +10,8 @@
 // Plugin ABI history (bump on any change to plugin_abi.h or to a component interface header):
 //   1: first version: crpgs_plugin_v1() descriptor, YAML schema, create/destroy with status.
 //   2: ContextModel::forward_partial.
-#define CRPGS_PLUGIN_ABI_VERSION 2
+//   3: ContextModel::forward_portable.
+#define CRPGS_PLUGIN_ABI_VERSION 3
 
 namespace crpgs {
 /// Compiled-in features and toolchain, e.g. for `crpgs --version`.

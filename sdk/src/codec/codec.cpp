@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <optional>
 
 #include <torch/torch.h>
 
@@ -25,7 +26,8 @@ using coding::ByteSpan;
 using coding::ByteWriter;
 
 constexpr const char* kComponent = "org.crpgs.codec.anchor_model";
-constexpr uint16_t kMajor = 1, kMinor = 0;
+// Minor 1: entropy parameters in portable arithmetic (CodedModel::arithmetic).
+constexpr uint16_t kMajor = 1, kMinor = 1;
 constexpr const char* kCompactLinks = "org.crpgs.links.compact";  // LINK, compact coding
 // Sanity limits for counts read from a file (refused before anything is allocated).
 constexpr uint64_t kMaxOffsets = 64, kMaxCodedDim = 4096, kMaxChunk = 1 << 20;
@@ -147,7 +149,7 @@ EntropyParams base_params(const CodedModel& m, const CodingPlan& plan, ContextMo
   const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
                          .index_select(0, plan.order);
   const EntropyParamLayout layout{coded_dim, m.offset_masks.size(1)};
-  return map_params(predict_entropy_params(context, pos01, layout, m.q0, m.chunk),
+  return map_params(predict_entropy_params(context, pos01, layout, m.q0, m.chunk, m.arithmetic),
                     [](const torch::Tensor& t) { return t.contiguous(); });
 }
 
@@ -159,7 +161,8 @@ Status apply_leaf_means(const CodedModel& m, const CodingPlan& plan, const LeafM
   if (leaves == 0) return OkStatus();
   if (!mlp.defined()) return corrupt("the model has leaves but no leaf MLP");
   torch::NoGradGuard no_grad;
-  ScopedComputeThreads one_thread(1);  // as in predict_entropy_params: bit-identical parameters
+  std::optional<ScopedComputeThreads> one_thread;  // as in predict_entropy_params
+  if (m.arithmetic == Arithmetic::kFast) one_thread.emplace(1);
   const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
                          .index_select(0, plan.order);
   for (int64_t s = 0; s < leaves; s += m.chunk) {
@@ -168,8 +171,9 @@ Status apply_leaf_means(const CodedModel& m, const CodingPlan& plan, const LeafM
     const auto root_feat =
         feature_sym_coded.index_select(0, roots).to(torch::kFloat) * p->q_f.index_select(0, roots);
     const auto rows = torch::arange(plan.leaf_begin + s, plan.leaf_begin + e, torch::kLong);
-    const auto mu = leaf_feature_mean(mlp, root_feat, pos01.index_select(0, roots),
-                                      pos01.index_select(0, rows), p->mu_f.index_select(0, rows));
+    const auto mu =
+        leaf_feature_mean(mlp, root_feat, pos01.index_select(0, roots), pos01.index_select(0, rows),
+                          p->mu_f.index_select(0, rows), m.arithmetic);
     p->mu_f.slice(0, plan.leaf_begin + s, plan.leaf_begin + e).copy_(mu);
   }
   return OkStatus();
@@ -288,8 +292,10 @@ const char* section_category(const std::string& id) {
   return "other";
 }
 
-StatusOr<EncodeResult> encode_model(const CodedModel& m, const Config& config,
+StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& config,
                                     const CodecComponents& c) {
+  CodedModel m = model;                  // shares the tensors
+  m.arithmetic = Arithmetic::kPortable;  // what this version (minor 1) writes
   auto bad = [](const std::string& msg) {
     return Status(StatusCode::kInvalidArgument, "encode: " + msg);
   };
@@ -488,6 +494,7 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.offset));
   // A later minor version may append fields; this one has none after Q0.
   if (hs->component_minor <= kMinor && !head.at_end()) return head.error("trailing bytes");
+  m.arithmetic = hs->component_minor >= 1 ? Arithmetic::kPortable : Arithmetic::kFast;
   if (K == 0 || K > kMaxOffsets) return corrupt("HEAD: offsets per anchor " + std::to_string(K));
   if (Dc == 0 || Dc > kMaxCodedDim) return corrupt("HEAD: feature width " + std::to_string(Dc));
   if (uint64_t(c.features->coded_dim()) != Dc || uint64_t(args.n_offsets) != K)

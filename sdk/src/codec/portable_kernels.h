@@ -1,0 +1,16 @@
+/// @file portable_kernels.h
+/// @brief Raw-pointer kernels behind crpgs/portable_math.h (kept out of the torch TUs).
+#pragma once
+
+#include <cstdint>
+
+namespace crpgs::portable {
+
+/// Rows [first, last) of y [N, O] = x [N, I] wt [I, O] + b [O], summed as portable_linear says.
+void linear_rows(const float* x, const float* wt, const float* b, int64_t first, int64_t last,
+                 int64_t in, int64_t out, float* y);
+
+/// y[i] = tanh(x[i]) for i in [first, last).
+void tanh_range(const float* x, int64_t first, int64_t last, float* y);
+
+}  // namespace crpgs::portable
