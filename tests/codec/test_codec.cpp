@@ -7,6 +7,7 @@
 #include <set>
 
 #include "crpgs/codec.h"
+#include "crpgs/coding/bitstream.h"
 #include "crpgs/coding/geometry.h"
 #include "crpgs/components.h"
 #include "test_registry.h"
@@ -156,6 +157,37 @@ TEST(Codec, CorruptAndTruncatedFilesAreRefused) {
     auto dec = decode_model(bad, registry());
     EXPECT_FALSE(dec.ok()) << "bit flip at byte " << at;
   }
+}
+
+// The file rebuilt (valid CRCs) with the codec's sections at `minor` and one byte of the SCAL
+// stream's data flipped.
+coding::Bytes relabelled_with_bad_scal(const coding::Bytes& file, uint16_t minor) {
+  auto ct = coding::ContainerReader::parse(file);
+  EXPECT_TRUE(ct.ok()) << ct.status().to_string();
+  coding::ContainerWriter w(ct->header.config_hash, ct->header.flags);
+  for (coding::Section sec : ct->sections) {
+    if (sec.component_id == "org.crpgs.codec.anchor_model") sec.component_minor = minor;
+    if (sec.id == "SCAL") sec.payload[sec.payload.size() / 2] ^= 0x5a;
+    EXPECT_TRUE(w.add_section(std::move(sec)).ok());
+  }
+  return w.finish();
+}
+
+// Format 1.1 computes the entropy parameters portably; a 1.0 file is decoded with the old
+// (BLAS) arithmetic, and a stream that fails to decode says why that may be.
+TEST(Codec, FormatOneZeroStreamErrorsNameTheKernelDependence) {
+  auto f = make_fixture(300, 12);
+  if (!f.ok()) GTEST_SKIP() << f.status().message();
+  auto enc = encode_model(f->model, f->config, f->components);
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  const std::string hint = "format 1.0 file decodes only where the BLAS kernels";
+  auto v11 = decode_model(relabelled_with_bad_scal(enc->bytes, 1), registry());
+  ASSERT_FALSE(v11.ok());
+  EXPECT_NE(v11.status().message().find("SCAL"), std::string::npos) << v11.status().message();
+  EXPECT_EQ(v11.status().message().find(hint), std::string::npos) << v11.status().message();
+  auto v10 = decode_model(relabelled_with_bad_scal(enc->bytes, 0), registry());
+  ASSERT_FALSE(v10.ok());
+  EXPECT_NE(v10.status().message().find(hint), std::string::npos) << v10.status().message();
 }
 
 }  // namespace

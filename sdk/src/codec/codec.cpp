@@ -646,7 +646,11 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
                                                  sa.scale.contiguous(), sa.q.contiguous(), &err);
       if (!decoded[size_t(k)].defined())
         return corrupt(std::string(kStreamIds[k]) + " chunk at anchor " + std::to_string(s) + ": " +
-                       err);
+                       err +
+                       (m.arithmetic == Arithmetic::kFast
+                            ? " (a format 1.0 file decodes only where the BLAS kernels that "
+                              "encoded it run; re-encode its run with this version)"
+                            : ""));
     }
     feat_c.slice(0, s, e).copy_(decoded[0].view({e - s, int64_t(Dc)}));
     scal_c.slice(0, s, e).copy_(decoded[1].view({e - s, 6}));
