@@ -79,6 +79,7 @@ TEST(PortableMath, LinearIsTheFixedOrderSumOnAnyThreadCount) {
   EXPECT_EQ(portable_linear(torch::zeros({0, 96}), w.detach(), b).sizes(),
             torch::IntArrayRef({0, 175}));
   EXPECT_THROW(portable_linear(x, torch::zeros({5, 4}), torch::zeros({5})), c10::Error);
+  EXPECT_THROW(portable_linear(x, w.detach().to(torch::kDouble), b), c10::Error);
 }
 
 }  // namespace

@@ -15,8 +15,9 @@ namespace crpgs {
 
 torch::Tensor portable_linear(const torch::Tensor& x, const torch::Tensor& w,
                               const torch::Tensor& b) {
-  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat &&
-                  w.scalar_type() == at::kFloat && b.scalar_type() == at::kFloat,
+  TORCH_CHECK(x.device().is_cpu() && w.device().is_cpu() && b.device().is_cpu() &&
+                  x.scalar_type() == at::kFloat && w.scalar_type() == at::kFloat &&
+                  b.scalar_type() == at::kFloat,
               "portable_linear: float CPU tensors only");
   TORCH_CHECK(x.dim() == 2 && w.dim() == 2 && b.dim() == 1 && x.size(1) == w.size(1) &&
                   b.size(0) == w.size(0),
