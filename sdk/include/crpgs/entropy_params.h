@@ -49,8 +49,7 @@ void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, En
 /// portable, portable tanh) encoder and decoder get the same bits on any machine.
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
-                                     int64_t chunk = 3000,
-                                     Arithmetic arithmetic = Arithmetic::kPortable);
+                                     int64_t chunk, Arithmetic arithmetic);
 
 /// CRP-GS's leaf-feature mean (method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
 /// Linear(Dc + 6 → H) → ReLU → Linear(H → Dc), positions normalised by the anchor bounds; with

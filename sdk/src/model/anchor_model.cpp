@@ -645,7 +645,8 @@ QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantStep
   q.bounds = m.bounds.clone();
   q.positions01 = normalise(q.positions, q.bounds);
   const EntropyParamLayout layout{m.features_model->coded_dim(), K};
-  q.params = predict_entropy_params(context, q.positions01, layout, q0, 3000);
+  q.params = predict_entropy_params(context, q.positions01, layout, q0, 3000,
+                                    Arithmetic::kPortable);  // as the codec
   for (auto* t : {&q.params.mu_f, &q.params.sigma_f, &q.params.mu_s, &q.params.sigma_s,
                   &q.params.mu_o, &q.params.sigma_o, &q.params.q_f, &q.params.q_s, &q.params.q_o})
     *t = t->detach().contiguous();

@@ -6,6 +6,10 @@
 namespace crpgs::raster {
 
 constexpr int kTileSize = 16;
+/// Tiles that cover `pixels` pixels along one axis.
+constexpr int tile_count(int pixels) {
+  return (pixels + kTileSize - 1) / kTileSize;
+}
 constexpr double kCovDilation = 0.3;        // added to the 2D covariance diagonal (low-pass)
 constexpr float kMaxAlpha = 0.99f;          // alpha = min(0.99, opacity * G)
 constexpr float kMinAlpha = 1.f / 255.f;    // contributions below are skipped

@@ -85,8 +85,8 @@ Projection project(const at::Tensor& means, const at::Tensor& scales, const at::
   const at::Tensor detd = det.detach();
   const at::Tensor lambda = mid + (mid * mid - detd).clamp_min(0).sqrt();
   const at::Tensor radius = (3.0 * lambda.sqrt()).ceil().clamp_max(kMaxRadius);
-  const int tiles_x = (camera.width + kTileSize - 1) / kTileSize;
-  const int tiles_y = (camera.height + kTileSize - 1) / kTileSize;
+  const int tiles_x = tile_count(camera.width);
+  const int tiles_y = tile_count(camera.height);
   const at::Tensor m2d = m2.detach().contiguous();
   at::Tensor rad_sub = at::zeros({idx.numel()}, at::kInt);
   auto ra = rad_sub.accessor<int32_t, 1>();
@@ -110,8 +110,8 @@ Projection project(const at::Tensor& means, const at::Tensor& scales, const at::
 Image rasterize(const Projection& proj, const at::Tensor& opacities, const at::Tensor& colors,
                 int width, int height, const std::array<float, 3>& background, bool render_depth) {
   const auto dopt = at::TensorOptions().dtype(at::kDouble);
-  const int tiles_x = (width + kTileSize - 1) / kTileSize;
-  const int tiles_y = (height + kTileSize - 1) / kTileSize;
+  const int tiles_x = tile_count(width);
+  const int tiles_y = tile_count(height);
   const int64_t n = proj.means2d.size(0);
   const at::Tensor m2d = proj.means2d.detach().contiguous();
   const at::Tensor depd = proj.depths.detach().contiguous();

@@ -215,8 +215,8 @@ ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
   TORCH_CHECK(scales.size(0) == n && rotations.size(0) == n,
               "rasterizer: means, scales and rotations must have the same N");
   const kernels::ProjectCamera cam = make_cam(camera, settings);
-  const int tiles_x = (camera.width + kTileSize - 1) / kTileSize;
-  const int tiles_y = (camera.height + kTileSize - 1) / kTileSize;
+  const int tiles_x = tile_count(camera.width);
+  const int tiles_y = tile_count(camera.height);
   const auto fopt = means.options();
   ProjectResult out;
   out.means2d = at::zeros({n, 2}, fopt);
@@ -297,8 +297,8 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
               "rasterizer: radii must be contiguous int32");
   const int64_t n = means2d.size(0);
   TileIntersections out;
-  out.tiles_x = (width + kTileSize - 1) / kTileSize;
-  out.tiles_y = (height + kTileSize - 1) / kTileSize;
+  out.tiles_x = tile_count(width);
+  out.tiles_y = tile_count(height);
   const int n_tiles = out.tiles_x * out.tiles_y;
   const float* m2 = means2d.data_ptr<float>();
   const int32_t* rad = radii.data_ptr<int32_t>();
