@@ -41,6 +41,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.dry_run = a.dry_run;
   opt.sweep_size = static_cast<int>(runs.size());
   opt.stop = &g_stop;
+  if (spec->share_prefix) opt.prefix_dir = (fs::path(runs_dir) / "prefixes").string();
   std::signal(SIGINT, on_stop_signal);
   std::signal(SIGTERM, on_stop_signal);
   // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.

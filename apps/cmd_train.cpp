@@ -42,6 +42,7 @@ class CliProgress final : public ProgressCallback {
   }
   void on_checkpoint(int, const std::string&) override {}
   void on_warning(int, const std::string& message) override { bar_.message("warning: " + message); }
+  void on_note(int, const std::string& message) override { bar_.message(message); }
   void finish() { bar_.finish(last_extra_); }
 
  private:
@@ -52,8 +53,9 @@ class CliProgress final : public ProgressCallback {
 
 /// Train from a resolved config into `out_dir`; evaluates the test views at the end.
 /// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
+/// `prefix_dir`: shared training prefixes (SetupOptions::prefix_dir); "" = off.
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
-                 bool resume, const std::string& method = "") {
+                 bool resume, const std::string& method = "", const std::string& prefix_dir = "") {
   // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
   auto lock = lock_directory(out_dir);
   if (!lock.ok()) return report_error(lock.status());
@@ -64,7 +66,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());
 
-  auto trainer = setup_training(cfg, registry, SetupOptions{out_dir, resume});
+  auto trainer = setup_training(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
   if (!trainer.ok()) return report_error(trainer.status());
   Trainer& t = *trainer.value();
   std::printf("scene: %zu train / %zu test views of %dx%d, %lld anchors\n",
@@ -72,7 +74,10 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.width,
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.height,
               static_cast<long long>(t.model().num_anchors()));
-  if (t.iteration() > 0) std::printf("resumed at iteration %d\n", t.iteration());
+  if (!t.prefix_status().empty())
+    std::printf("%s\n", t.prefix_status().c_str());
+  else if (t.iteration() > 0)
+    std::printf("resumed at iteration %d\n", t.iteration());
   const char *omp_wait = std::getenv("OMP_WAIT_POLICY"),
              *blas_timeout = std::getenv("OPENBLAS_THREAD_TIMEOUT");
   std::printf("idle compute threads: OMP_WAIT_POLICY=%s, OPENBLAS_THREAD_TIMEOUT=%s\n",
@@ -176,7 +181,7 @@ train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interv
 }  // namespace
 
 void add_train_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string config, out_dir, run_dir, png_dir, method;
+  static std::string config, out_dir, run_dir, png_dir, method, prefix_dir;
   static bool resume = false;
 
   auto* train =
@@ -186,6 +191,11 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
       ->default_val("runs/train");
   train->add_option("--set", g.sets, "override a config key: --set train.iterations=1000");
   train->add_flag("--resume", resume, "continue from the run directory's last checkpoint");
+  train->add_option("--share-prefix", prefix_dir,
+                    "directory of shared training prefixes (rate path): start from the state at "
+                    "rate_start of a run that differs only in rate.lambda/rate.mask_lambda when "
+                    "one is there, and publish this run's when it is not (`crpgs sweep` passes "
+                    "RUNS/prefixes)");
   train->add_option("--method", method,
                     "name of the method in metrics.json and reports (default: the config's file "
                     "name; `crpgs sweep` passes the config name plus its non-rate grid keys)");
@@ -193,7 +203,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(config, g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, resume, method));
+    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, resume, method, prefix_dir));
   });
 
   auto* eval = app.add_subcommand(

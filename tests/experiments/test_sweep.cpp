@@ -382,6 +382,37 @@ TEST(Sweep, TheRunsMethodWithItsGridKeysReachesTheTrainer) {
             std::string::npos);
 }
 
+TEST(Sweep, RunsGetTheSharedPrefixDirectory) {
+  LocalSweep s("prefix_dir");
+  EXPECT_TRUE(parse_sweep("configs: [a.yaml]\n", "s.yaml")->share_prefix);  // the default
+  EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nshare_prefix: false\n", "s.yaml")->share_prefix);
+  s.opt.prefix_dir = s.dir + "/runs/prefixes";
+  ASSERT_TRUE(run_one(s.runs[0], s.opt).ok());
+  EXPECT_NE(read_text(s.runs[0].dir + "/stdout.log").find("--share-prefix " + s.opt.prefix_dir),
+            std::string::npos);
+}
+
+// Two groups (H, C) of runs that can share a prefix, and one run (-) that shares nothing.
+TEST(Sweep, NextRunStartsAPrefixEarlyThenUsesThem) {
+  std::set<std::string> published;
+  auto is_published = [&](const std::string& k) { return published.count(k) > 0; };
+  const std::vector<PendingRun> waiting = {{"H", false}, {"H", false}, {"C", false}, {"", false}};
+  // Nothing runs: the first H computes H's prefix.
+  EXPECT_EQ(next_run_to_start(waiting, {}, is_published), 0u);
+  // An H runs: C's first run starts C's prefix rather than a second H redoing H's.
+  EXPECT_EQ(next_run_to_start(waiting, {"H"}, is_published), 2u);
+  // Both prefixes under way: the run that shares nothing goes before the ones that wait.
+  EXPECT_EQ(next_run_to_start(waiting, {"H", "C"}, is_published), 3u);
+  // H published: an H run starts from it.
+  published.insert("H");
+  EXPECT_EQ(next_run_to_start({{"H", false}, {"C", false}}, {"C"}, is_published), 0u);
+  // A waiting C with its own checkpoint is C's prefix under way: a fresh C does not start before
+  // it; with nothing else to do a worker does not wait (the first run starts).
+  EXPECT_EQ(next_run_to_start({{"C", false}, {"C", true}}, {}, is_published), 1u);
+  published.clear();
+  EXPECT_EQ(next_run_to_start({{"C", false}, {"C", false}}, {"C"}, is_published), 0u);
+}
+
 TEST(Sweep, SlurmScriptHasArrayAndResources) {
   const std::string dir = fresh_dir("slurm_script");
   auto spec = parse_sweep(sweep_yaml(dir, ""), "s.yaml");

@@ -6,7 +6,9 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <set>
 
+#include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/experiments/sweep.h"
@@ -185,6 +187,122 @@ TEST(RateTraining, SetupFromConfigAttachesTheRatePath) {
                              test::rate_registry(), SetupOptions());
   ASSERT_FALSE(half.ok());
   EXPECT_NE(half.status().message().find("context"), std::string::npos);
+}
+
+// A tiny rate-path config (rate_start 10 of 30 iterations) with the given weight and seed.
+Config prefix_test_config(double lambda, int seed) {
+  auto cfg = Config::from_string(
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 6}\n"
+      "train: {schedule: fast, fast_factor: 0.001, threads: 1, eval_interval: 0, seed: " +
+          std::to_string(seed) +
+          "}\n"
+          "rasterizer: {type: cpu, threads: 1}\n"
+          "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+          "entropy: {type: gaussian}\n"
+          "rate: {lambda: " +
+          std::to_string(lambda) + ", subset: 0.5, recompute_bounds: true}\n",
+      "prefix.yaml");
+  if (!cfg.ok()) throw StatusError(cfg.status());
+  auto resolved = cfg->resolve(test::rate_registry());
+  if (!resolved.ok()) throw StatusError(resolved.status());
+  return resolved.value();
+}
+
+std::unique_ptr<Trainer> prefix_test_trainer(const Config& cfg, const std::string& prefix_dir) {
+  torch::manual_seed(1);  // the context's init draws from the global generator
+  auto t = setup_training(cfg, test::rate_registry(), SetupOptions{"", false, prefix_dir});
+  if (!t.ok()) throw StatusError(t.status());
+  return std::move(t).value();
+}
+
+bool same_state(Trainer& a, Trainer& b) {
+  auto x = a.model().state_dict(), y = b.model().state_dict();
+  if (x.size() != y.size()) return false;
+  for (const auto& kv : x)
+    if (!y.count(kv.first) || !torch::equal(kv.second, y.at(kv.first))) return false;
+  return true;
+}
+
+// Nothing reads the rate weights up to rate_start, so a run that starts from another run's
+// published state there ends bit-identical to the same run trained from the start.
+TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/shared_prefix";
+  std::filesystem::remove_all(dir);
+  const Config low = prefix_test_config(0.004, 3), high = prefix_test_config(0.02, 3);
+  const Config other_seed = prefix_test_config(0.02, 4);
+  const std::string key = shared_prefix_key(low);
+  ASSERT_EQ(key.size(), 16u);
+  EXPECT_EQ(shared_prefix_key(high), key);
+  EXPECT_NE(shared_prefix_key(other_seed), key);
+  EXPECT_EQ(shared_prefix_key(Config::from_string("train: {seed: 1}\n", "plain.yaml").value()),
+            "");  // no rate path, nothing to share
+
+  auto first = prefix_test_trainer(low, dir);
+  EXPECT_EQ(first->iteration(), 0);
+  EXPECT_EQ(first->prefix_status(), "");
+  ASSERT_TRUE(first->train().ok());
+  const std::string prefix = dir + "/" + key + ".pt";
+  ASSERT_TRUE(std::filesystem::exists(prefix));
+
+  auto shared = prefix_test_trainer(high, dir);
+  const int rate_start = shared->options().schedule.rate_start;
+  ASSERT_EQ(rate_start, 10);
+  EXPECT_EQ(shared->iteration(), rate_start);
+  EXPECT_NE(shared->prefix_status().find("started at iteration 10"), std::string::npos)
+      << shared->prefix_status();
+  ASSERT_TRUE(shared->train().ok());
+  auto alone = prefix_test_trainer(high, "");
+  ASSERT_TRUE(alone->train().ok());
+  EXPECT_TRUE(same_state(*shared, *alone));
+  EXPECT_FALSE(same_state(*shared, *first));  // the weight acts after rate_start
+
+  // Another seed is another training: it does not start from this prefix.
+  EXPECT_EQ(prefix_test_trainer(other_seed, dir)->iteration(), 0);
+
+  // A prefix that is unreadable or not at rate_start is not used, and leaves the trainer as a
+  // fresh one: it still trains to the same state.
+  const std::string bad_dir = dir + "/bad";
+  std::filesystem::create_directories(bad_dir);
+  ASSERT_TRUE(write_file_atomic(bad_dir + "/" + key + ".pt", "not a checkpoint").ok());
+  auto junk = prefix_test_trainer(high, bad_dir);
+  EXPECT_EQ(junk->iteration(), 0);
+  EXPECT_NE(junk->prefix_status().find("not used"), std::string::npos) << junk->prefix_status();
+  ASSERT_TRUE(first->save_checkpoint(bad_dir + "/" + key + ".pt").ok());  // iteration 30
+  auto late = prefix_test_trainer(high, bad_dir);
+  EXPECT_EQ(late->iteration(), 0);
+  EXPECT_NE(late->prefix_status().find("not rate_start"), std::string::npos)
+      << late->prefix_status();
+  ASSERT_TRUE(late->train().ok());
+  EXPECT_TRUE(same_state(*late, *alone));
+}
+
+// The sweep groups runs by the key of the config it resolves; the trainer computes it from the
+// config.yaml the sweep wrote. Both must agree, or no run would find its group's prefix.
+TEST(RateTraining, SweepAndTrainerAgreeOnTheSharedPrefixKey) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = CRPGS_SOURCE_DIR;
+  auto spec = experiments::load_sweep(root + "/configs/sweeps/fern_rd.yaml");
+  ASSERT_TRUE(spec.ok()) << spec.status().to_string();
+  EXPECT_TRUE(spec->share_prefix);
+  const auto runs =
+      experiments::expand_sweep(spec.value(), std::string(CRPGS_TEST_TMP_DIR) + "/prefix_sweep");
+  ASSERT_EQ(runs.size(), 8u);
+  std::set<std::string> keys;
+  for (auto run : runs) {
+    run.config_path = root + "/" + run.config_path;  // the sweep names them from the repository
+    auto cfg = experiments::build_run_config(run, &test::rate_registry());
+    ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+    ASSERT_TRUE(experiments::prepare_run(run, &test::rate_registry()).ok());
+    auto saved = Config::load_file(run.dir + "/config.yaml");
+    ASSERT_TRUE(saved.ok());
+    auto resolved = saved->resolve(test::rate_registry());
+    ASSERT_TRUE(resolved.ok());
+    EXPECT_EQ(shared_prefix_key(resolved.value()), shared_prefix_key(cfg.value())) << run.id;
+    keys.insert(shared_prefix_key(cfg.value()));
+  }
+  EXPECT_EQ(keys.size(), 2u);  // HAC's four weights share one prefix, CRP-GS's another
 }
 
 TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {

@@ -39,6 +39,8 @@ class ProgressCallback {
   /// Called when an iteration's loss or gradients were not finite (its update is discarded) or
   /// the trainer rolled back to its last good state; `message` names the iteration and group.
   virtual void on_warning(int iteration, const std::string& message) {}
+  /// Something worth a line in the log that is not a problem (e.g. a shared prefix written).
+  virtual void on_note(int iteration, const std::string& message) {}
 };
 
 /// Flags another thread (a signal handler) may set while the trainer runs.

@@ -17,6 +17,7 @@
 #include "crpgs/progress.h"
 #include "crpgs/rasterizer.h"
 #include "crpgs/registry.h"
+#include "crpgs/shared_prefix.h"
 #include "crpgs/status.h"
 
 namespace crpgs {
@@ -67,6 +68,10 @@ struct TrainOptions {
   int max_skipped_steps = 5;
   int max_rollbacks = 3;
   std::string output_dir;  ///< checkpoints go to output_dir/checkpoint.pt; "" = none
+  /// Where to publish the state after iteration schedule.rate_start, the end of the part of
+  /// training that the rate weights do not touch (see shared_prefix_key); written once, when
+  /// absent. "" = nowhere.
+  std::string prefix_path;
 };
 
 struct ViewMetrics {
@@ -140,6 +145,14 @@ class Trainer {
   /// temporary file and rename.
   Status save_checkpoint(const std::string& path) const;
   Status load_checkpoint(const std::string& path);
+  /// Continues from a shared prefix (a state published at iteration schedule.rate_start by a run
+  /// whose config has the same shared_prefix_key). On any error (unreadable, another iteration,
+  /// another model) the trainer is left exactly as it was and the error says why.
+  Status start_from_prefix(const std::string& path);
+  /// One line on the shared prefix for the log: the one this run started from, or why one was
+  /// not used; "" when none was looked for.
+  const std::string& prefix_status() const { return prefix_status_; }
+  void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
   /// The first parameter group holding a NaN/Inf, or "" when every parameter is finite.
@@ -166,6 +179,8 @@ class Trainer {
   Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin, bool rollback);
   /// Remembers the current state as the last good one (and writes it to checkpoint_path()).
   Status checkpoint(ProgressCallback* progress);
+  /// Writes options_.prefix_path once (when absent and every parameter is finite).
+  void publish_prefix(ProgressCallback* progress) const;
   TrainOptions options_;
   Dataset dataset_;
   std::shared_ptr<Rasterizer> rasterizer_;
@@ -181,6 +196,7 @@ class Trainer {
   int last_good_iteration_ = -1;
   double elapsed_ = 0;
   std::vector<PsnrPoint> psnr_trace_;
+  std::string prefix_status_;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip
@@ -211,6 +227,10 @@ struct RateSetup {
 struct SetupOptions {
   std::string output_dir;  ///< overrides nothing in the config; where checkpoints go
   bool resume = false;     ///< continue from output_dir/checkpoint.pt if it exists
+  /// Shared training prefixes (rate path only): a run without its own checkpoint starts from
+  /// prefix_dir/<shared_prefix_key>.pt when present, and every run publishes it at
+  /// schedule.rate_start when absent. "" = off.
+  std::string prefix_dir{};  // {}: SetupOptions{dir, resume} may leave it out
 };
 
 /// Wires everything from a resolved config: dataset (or the synthetic scene), rasterizer and

@@ -26,6 +26,7 @@
 #include "crpgs/config.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
+#include "crpgs/shared_prefix.h"
 #include "io/json_writer.h"
 
 extern char** environ;
@@ -84,14 +85,15 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
     return bad(name, std::string("YAML error: ") + e.what());
   }
   if (!root.IsMap()) return bad(name, "a sweep file is a YAML map");
-  static const std::set<std::string> kKeys = {"name",     "output",   "configs",   "overrides",
-                                              "rate_key", "datasets", "resources", "workers"};
+  static const std::set<std::string> kKeys = {"name",      "output",   "configs",
+                                              "overrides", "rate_key", "datasets",
+                                              "resources", "workers",  "share_prefix"};
   for (const auto& kv : root) {
     const std::string k = kv.first.as<std::string>();
     if (!kKeys.count(k))
       return bad(name, "unknown key '" + k +
                            "' (expected name, output, configs, overrides, rate_key, datasets, "
-                           "resources, workers)");
+                           "resources, workers, share_prefix)");
   }
   SweepSpec s;
   s.file = name;
@@ -163,6 +165,7 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
       if (r["max_parallel"]) s.resources.max_parallel = r["max_parallel"].as<int>();
     }
     if (root["workers"]) s.workers = root["workers"].as<int>();
+    if (root["share_prefix"]) s.share_prefix = root["share_prefix"].as<bool>();
   } catch (const YAML::Exception& e) {
     return bad(name, std::string("bad value: ") + e.what());
   }
@@ -295,6 +298,7 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",
                                    "-o",       run.dir, "--method", run.method};
   if (resume) args.push_back("--resume");
+  if (!opt.prefix_dir.empty()) args.insert(args.end(), {"--share-prefix", opt.prefix_dir});
   const std::string header = "== " + local_time_text() + " " + [&] {
     std::string cmd;
     for (const auto& a : args)  // quoted where needed, so the line can be pasted into a shell
@@ -335,6 +339,29 @@ std::string exit_text(int status) {
 
 }  // namespace
 
+size_t next_run_to_start(const std::vector<PendingRun>& pending,
+                         const std::vector<std::string>& running,
+                         const std::function<bool(const std::string&)>& published) {
+  // A group's prefix is under way in a running run or in a waiting one with a checkpoint.
+  auto under_way = [&](const std::string& key) {
+    return std::find(running.begin(), running.end(), key) != running.end() ||
+           std::any_of(pending.begin(), pending.end(), [&](const PendingRun& p) {
+             return p.has_checkpoint && p.prefix_key == key;
+           });
+  };
+  for (size_t i = 0; i < pending.size(); ++i) {
+    const PendingRun& p = pending[i];
+    if (!p.prefix_key.empty() && !p.has_checkpoint && !published(p.prefix_key) &&
+        !under_way(p.prefix_key))
+      return i;
+  }
+  for (size_t i = 0; i < pending.size(); ++i) {
+    const PendingRun& p = pending[i];
+    if (p.prefix_key.empty() || p.has_checkpoint || published(p.prefix_key)) return i;
+  }
+  return 0;
+}
+
 StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const ExecOptions& opt) {
   auto log = opt.log ? opt.log : [](const std::string& s) { std::printf("%s\n", s.c_str()); };
   if (!opt.dry_run && opt.runner.empty())
@@ -365,17 +392,37 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
   if (opt.dry_run) return sum;
 
   std::vector<Active> active;
-  size_t next = 0;
+  // Prefix keys, to start runs in the order that shares most (next_run_to_start).
+  std::map<const SweepRun*, std::string> prefix_key;
+  if (!opt.prefix_dir.empty() && opt.registry)
+    for (const SweepRun* r : todo)
+      if (auto cfg = build_run_config(*r, opt.registry); cfg.ok())
+        prefix_key[r] = shared_prefix_key(cfg.value());
+  auto pick = [&]() -> const SweepRun* {
+    std::vector<PendingRun> pending;
+    std::error_code ec;
+    for (const SweepRun* r : todo)
+      pending.push_back({prefix_key[r], fs::exists(r->dir + "/checkpoint.pt", ec)});
+    std::vector<std::string> running;
+    for (const Active& a : active) running.push_back(prefix_key[a.run]);
+    const size_t i = next_run_to_start(pending, running, [&](const std::string& key) {
+      return fs::exists(fs::path(opt.prefix_dir) / (key + ".pt"), ec);
+    });
+    const SweepRun* r = todo[i];
+    todo.erase(todo.begin() + std::ptrdiff_t(i));
+    return r;
+  };
+
   const size_t workers = static_cast<size_t>(std::max(1, opt.workers));
   bool stopping = false;
-  while ((next < todo.size() && !stopping) || !active.empty()) {
+  while ((!todo.empty() && !stopping) || !active.empty()) {
     if (!stopping && opt.stop && opt.stop->load()) {
       stopping = true;
       log("stopping: no further runs start; the running ones checkpoint and stop");
       for (const Active& a : active) kill(a.pid, SIGTERM);
     }
-    while (!stopping && next < todo.size() && active.size() < workers) {
-      const SweepRun& r = *todo[next++];
+    while (!stopping && !todo.empty() && active.size() < workers) {
+      const SweepRun& r = *pick();
       auto pid = launch(r, opt);
       if (!pid.ok()) {
         ++sum.failed;

@@ -1,5 +1,7 @@
 # Sources of sdk/src/train (paths relative to sdk/).
-list(APPEND CRPGS_BASE_SOURCES src/train/sections.cpp)
+list(APPEND CRPGS_BASE_SOURCES
+  src/train/sections.cpp
+  src/train/shared_prefix.cpp)     # which runs share the start of their training
 list(APPEND CRPGS_TORCH_SOURCES
   src/train/trainer.cpp            # loop, checkpoints, evaluation, setup from a config
   src/train/ssim.cpp               # the SSIM loss with its own backward

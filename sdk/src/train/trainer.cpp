@@ -317,6 +317,37 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
   return OkStatus();
 }
 
+Status Trainer::start_from_prefix(const std::string& path) {
+  auto bytes = read_file_bytes(path);
+  if (!bytes.ok()) return bytes.status();
+  auto fresh = serialize_state();
+  if (!fresh.ok()) return fresh.status();
+  const std::vector<uint8_t> fresh_bytes(fresh->begin(), fresh->end());
+  Status st = restore_state(bytes.value(), path, false);
+  if (st.ok() && iteration_ != options_.schedule.rate_start)
+    st = Status(StatusCode::kInvalidArgument,
+                path + " holds iteration " + std::to_string(iteration_) + ", not rate_start (" +
+                    std::to_string(options_.schedule.rate_start) + ")");
+  if (!st.ok()) CRPGS_RETURN_IF_ERROR(restore_state(fresh_bytes, "the fresh state", false));
+  return st;
+}
+
+void Trainer::publish_prefix(ProgressCallback* progress) const {
+  const std::string& path = options_.prefix_path;
+  std::error_code ec;
+  if (path.empty() || std::filesystem::exists(path, ec)) return;
+  Status st = nonfinite_parameter_group().empty()
+                  ? OkStatus()
+                  : Status(StatusCode::kNonFinite, "a parameter is non-finite");
+  if (st.ok()) st = save_checkpoint(path);
+  if (!progress) return;
+  if (st.ok())
+    progress->on_note(iteration_, "shared prefix written: " + path +
+                                      " (runs that differ only in the rate weights start there)");
+  else
+    progress->on_warning(iteration_, "shared prefix not written: " + st.message());
+}
+
 std::string Trainer::nonfinite_parameter_group() const {
   torch::NoGradGuard no_grad;
   for (const auto& [name, param] : model_->named_parameters())
@@ -484,6 +515,7 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
       }
       last_checkpoint = Clock::now();
     }
+    if (it == sc.rate_start) publish_prefix(progress);
     if (control && control->stop.load()) {
       CRPGS_RETURN_IF_ERROR(checkpoint(progress));
       return Status(
@@ -725,6 +757,10 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(TrainOptions train_options, train_options_from_config(resolved));
   CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions model_options, model_options_from_config(resolved));
   train_options.output_dir = setup.output_dir;
+  const std::string prefix_key = setup.prefix_dir.empty() ? "" : shared_prefix_key(resolved);
+  if (!prefix_key.empty())
+    train_options.prefix_path =
+        (std::filesystem::path(setup.prefix_dir) / (prefix_key + ".pt")).string();
   // 2. Threads (libtorch starts with one here) and the allocator.
   set_compute_threads(train_options.threads);
   keep_freed_memory_in_heap();
@@ -803,12 +839,21 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> trainer,
                          make_trainer(train_options, model_options, std::move(dataset),
                                       std::move(rasterizer), std::move(features), rate));
-  // 6. Resume from the last checkpoint when asked and present.
+  // 6. Resume from the last checkpoint when asked and present, else from a shared prefix.
   if (setup.resume) {
     const std::string path = trainer->checkpoint_path();
     if (path.empty())
       return Status(StatusCode::kInvalidArgument, "resume needs an output directory");
     if (std::filesystem::exists(path)) CRPGS_RETURN_IF_ERROR(trainer->load_checkpoint(path));
+  }
+  const std::string& prefix = train_options.prefix_path;
+  if (!prefix.empty() && trainer->iteration() == 0 && std::filesystem::exists(prefix)) {
+    // A bad prefix costs only the time it would have saved: train from the start.
+    const Status st = trainer->start_from_prefix(prefix);
+    trainer->set_prefix_status(
+        st.ok() ? "started at iteration " + std::to_string(trainer->iteration()) +
+                      " from the shared prefix " + prefix
+                : "shared prefix not used, training from the start: " + st.message());
   }
   return trainer;
 }

@@ -19,6 +19,9 @@
 ///     - {name: fern, set: {dataset.format: llff, dataset.path: /data/fern}}
 ///   resources: {cpus: 4, mem: 16G, time: "08:00:00", partition: batch}   # Slurm
 ///   workers: 2                      # local parallel runs
+///   share_prefix: true              # default; runs that differ only in the rate weights share
+///                                   # their training up to rate_start (RUNS/prefixes, see
+///                                   # crpgs/shared_prefix.h)
 #pragma once
 
 #include <atomic>
@@ -65,6 +68,7 @@ struct SweepSpec {
   std::vector<SweepDataset> datasets;  ///< empty = one unnamed dataset (the configs' own)
   SweepResources resources;
   int workers = 1;
+  bool share_prefix = true;
 };
 
 StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text, const std::string& name);
@@ -107,7 +111,26 @@ struct ExecOptions {
   /// Set (e.g. by a SIGINT/SIGTERM handler) to stop: no run starts after it, the running ones get
   /// SIGTERM (`crpgs train` checkpoints and exits) and are waited for. Null: never stops.
   const std::atomic<bool>* stop = nullptr;
+  /// Passed to each run as `--share-prefix`; "" = off. With it, the next run to start is chosen
+  /// to share most (next_run_to_start).
+  std::string prefix_dir;
 };
+
+/// What a waiting run needs from the shared prefixes.
+struct PendingRun {
+  std::string prefix_key;       ///< shared_prefix_key of its config; "" = shares nothing
+  bool has_checkpoint = false;  ///< resumes from its own checkpoint
+};
+
+/// Index into `pending` of the run to start next: first one whose group's prefix is neither
+/// published nor under way (in a running run, or a waiting one with a checkpoint), so that it
+/// gets computed early; then one that needs no prefix (published, own checkpoint, or nothing to
+/// share); else the first (a worker does not wait for a prefix). `running`: prefix keys of the
+/// running runs; `published(key)`: the prefix file exists. Sweep order within each class.
+/// `pending` must be non-empty.
+size_t next_run_to_start(const std::vector<PendingRun>& pending,
+                         const std::vector<std::string>& running,
+                         const std::function<bool(const std::string&)>& published);
 
 struct SweepSummary {
   int total = 0, skipped = 0, succeeded = 0, failed = 0;
