@@ -5,9 +5,14 @@
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 
 #include "cli_common.h"
+#include "crpgs/dir_lock.h"
+#include "crpgs/experiments/run_metrics.h"
 #include "crpgs/experiments/sweep.h"
+#include "crpgs/shared_prefix.h"
+#include "progress_bar.h"
 
 namespace crpgs::cli {
 namespace {
@@ -18,7 +23,7 @@ struct SweepArgs {
   std::string file, out;
   int jobs = 0;
   int run_index = -1;
-  bool slurm = false, dry_run = false;
+  bool slurm = false, dry_run = false, status = false;
 };
 
 std::atomic<bool> g_stop{false};
@@ -28,12 +33,76 @@ extern "C" void on_stop_signal(int) {
   g_stop = true;
 }
 
+/// The last `bytes` of a file ("" if unreadable): enough for a progress bar's last lines.
+std::string file_tail(const std::string& path, std::streamoff bytes = 16384) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) return "";
+  const std::streamoff size = in.tellg();
+  in.seekg(std::max<std::streamoff>(0, size - bytes));
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+/// `crpgs sweep --status`: each run's state, its progress (from its log) or its result.
+int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun>& runs,
+                       const std::string& runs_dir, const ComponentRegistry& registry) {
+  std::vector<std::vector<std::string>> rows{{"run", "state", "progress", "result"}};
+  int done = 0, running = 0, stopped = 0, waiting = 0;
+  char buf[160];
+  for (const auto& r : runs) {
+    std::vector<std::string> row{
+        "[" + std::to_string(r.index + 1) + "/" + std::to_string(runs.size()) + "] " + r.id, "", "",
+        ""};
+    const auto progress = last_progress(file_tail(r.dir + "/stderr.log"), "train");
+    const std::string holder = directory_lock_holder(r.dir);
+    std::error_code ec;
+    if (ex::run_state(r.dir) == ex::RunState::kComplete) {
+      ++done;
+      row[1] = "done";
+      if (auto m = ex::read_run_metrics(r.dir + "/metrics.json"); m.ok()) {
+        std::snprintf(buf, sizeof buf, "%.3f dB, %llu B, trained %s", m->psnr_mean,
+                      static_cast<unsigned long long>(m->size_bytes),
+                      format_duration(m->train_seconds).c_str());
+        row[3] = buf;
+      }
+    } else if (!holder.empty()) {
+      ++running;
+      row[1] = "running (" + holder + ")";
+      if (progress) {
+        std::snprintf(buf, sizeof buf, "%ld/%ld, %.1f it/s, ETA %s", progress->done,
+                      progress->total, progress->rate, progress->eta.c_str());
+        row[2] = buf;
+      }
+    } else if (fs::exists(r.dir + "/checkpoint.pt", ec)) {
+      ++stopped;
+      row[1] = "stopped (resumes from its checkpoint)";
+      if (progress)
+        row[2] =
+            "last seen " + std::to_string(progress->done) + "/" + std::to_string(progress->total);
+    } else {
+      ++waiting;
+      row[1] = "waiting";
+      if (spec.share_prefix)
+        if (auto cfg = ex::build_run_config(r, &registry); cfg.ok()) {
+          const std::string key = shared_prefix_key(cfg.value());
+          if (!key.empty() && fs::exists(fs::path(runs_dir) / "prefixes" / (key + ".pt"), ec))
+            row[1] += " (will start from its shared prefix)";
+        }
+    }
+    rows.push_back(std::move(row));
+  }
+  std::printf("sweep %s: %zu runs in %s: %d done, %d running, %d stopped, %d waiting\n",
+              spec.name.c_str(), runs.size(), runs_dir.c_str(), done, running, stopped, waiting);
+  print_table(rows);
+  return 0;
+}
+
 int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   auto spec = ex::load_sweep(a.file);
   if (!spec.ok()) return report_error(spec.status());
   const std::string runs_dir = a.out.empty() ? spec->output : a.out;
   const auto runs = ex::expand_sweep(spec.value(), runs_dir);
   ComponentRegistry registry = load_registry(g);
+  if (a.status) return print_sweep_status(spec.value(), runs, runs_dir, registry);
 
   ex::ExecOptions opt;
   opt.workers = a.jobs > 0 ? a.jobs : spec->workers;
@@ -130,6 +199,9 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
   cmd->add_option("--run-index", a.run_index,
                   "run only the run with this index (what each Slurm array task does)")
       ->check(CLI::NonNegativeNumber);
+  cmd->add_flag("--status", a.status,
+                "show each run's state, progress (iteration, rate, ETA: from its log) or result, "
+                "and which waiting runs will start from a shared prefix; runs nothing");
   cmd->add_flag("--dry-run", a.dry_run,
                 "list what would run (with --slurm: print the sbatch script); run nothing");
   cmd->callback([&g] { throw CLI::RuntimeError(run_sweep_command(a, g)); });

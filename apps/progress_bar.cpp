@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 
 namespace crpgs::cli {
 
@@ -75,6 +76,40 @@ void ProgressBar::draw(long done, const std::string& extra, bool final) {
     std::fprintf(out_, "%s %3.0f%% %s %s\n", label_.c_str(), frac * 100, stats, extra.c_str());
   }
   std::fflush(out_);
+}
+
+std::optional<ProgressLine> last_progress(const std::string& log, const std::string& label) {
+  // draw() writes "LABEL [bar] PCT% DONE/TOTAL RATE/s ELAPSED ETA ETA ..." on a TTY (after
+  // "\r\033[K") and the same without the bar in plain lines.
+  size_t end = log.size();
+  while (end > 0) {
+    const size_t cut = log.find_last_of("\r\n", end - 1);
+    const size_t begin = cut == std::string::npos ? 0 : cut + 1;
+    std::string line = log.substr(begin, end - begin);
+    end = cut == std::string::npos ? 0 : cut;
+    if (line.rfind("\033[K", 0) == 0) line.erase(0, 3);
+    std::istringstream in(line);
+    std::string word, fraction, rate, elapsed, eta_word, eta;
+    if (!(in >> word) || word != label) continue;
+    if (!(in >> word)) continue;
+    if (word.front() == '[' && !(in >> word)) continue;  // the TTY bar, then the percentage
+    if (!(in >> fraction >> rate >> elapsed >> eta_word >> eta) || eta_word != "ETA") continue;
+    const size_t slash = fraction.find('/');
+    if (slash == std::string::npos || rate.size() < 3 || rate.substr(rate.size() - 2) != "/s")
+      continue;
+    try {
+      ProgressLine p;
+      p.label = label;
+      p.done = std::stol(fraction.substr(0, slash));
+      p.total = std::stol(fraction.substr(slash + 1));
+      p.rate = std::stod(rate.substr(0, rate.size() - 2));
+      p.eta = eta;
+      return p;
+    } catch (const std::exception&) {
+      continue;  // a garbled line (e.g. cut off by a kill)
+    }
+  }
+  return std::nullopt;
 }
 
 }  // namespace crpgs::cli

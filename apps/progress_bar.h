@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <optional>
 #include <string>
 
 namespace crpgs::cli {
@@ -34,5 +35,15 @@ class ProgressBar {
 
 /// "1m23s", "4.2s".
 std::string format_duration(double seconds);
+
+/// What one drawn bar says (read back from a log, e.g. by `crpgs sweep --status`).
+struct ProgressLine {
+  std::string label;
+  long done = 0, total = 0;
+  double rate = 0;  ///< units per second of the process that drew it
+  std::string eta;  ///< as drawn ("2h10m", "?")
+};
+/// The last bar `label` drew in `log` (plain lines or TTY redraws); nullopt if none.
+std::optional<ProgressLine> last_progress(const std::string& log, const std::string& label);
 
 }  // namespace crpgs::cli

@@ -53,5 +53,30 @@ TEST(ProgressBar, AFreshRunCountsFromZero) {
   EXPECT_EQ(line.find("ETA ?"), std::string::npos) << line;
 }
 
+// `crpgs sweep --status` reads a run's progress back from its log.
+TEST(ProgressBar, LastProgressReadsBackWhatTheBarDrew) {
+  const std::string text = bar_output(30000, 12000, 13030);
+  auto p = last_progress(text, "train");
+  ASSERT_TRUE(p.has_value()) << text;
+  EXPECT_EQ(p->done, 13030);
+  EXPECT_EQ(p->total, 30000);
+  EXPECT_GT(p->rate, 0);
+  EXPECT_FALSE(p->eta.empty());
+  // The last of several lines, TTY redraws included; other labels and cut-off lines are skipped.
+  const std::string log =
+      "train  10% 3000/30000 2.0/s 25m00s ETA 3h45m\n"
+      "\r\033[Ktrain [###.....] 11% 3300/30000 2.1/s 26m10s ETA 3h31m loss 0.1"
+      "\r\033[Ktrain [###.....] 11% 3310/30000 2.1/s 26m15s ETA 3h30m loss 0.1\n"
+      "decode 50% 1/2 1.0/s 1.0s ETA 1.0s\n"
+      "train  11% 33";
+  p = last_progress(log, "train");
+  ASSERT_TRUE(p.has_value());
+  EXPECT_EQ(p->done, 3310);
+  EXPECT_EQ(p->eta, "3h30m");
+  EXPECT_DOUBLE_EQ(p->rate, 2.1);
+  EXPECT_FALSE(last_progress("no bar here\n", "train").has_value());
+}
+
 }  // namespace
+
 }  // namespace crpgs::cli

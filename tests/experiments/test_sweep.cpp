@@ -413,6 +413,58 @@ TEST(Sweep, NextRunStartsAPrefixEarlyThenUsesThem) {
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", false}}, {"C"}, is_published), 0u);
 }
 
+// `crpgs sweep --status`: one run of each state, with the progress read back from its log.
+TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "the crpgs executable is not built";
+#else
+  const std::string dir = fresh_dir("status");
+  write_text(dir + "/a.yaml", "tag: a\nentropy: {lambda: 0.5}\n");
+  const std::string yaml = "name: st\noutput: " + dir + "/runs\nconfigs: [" + dir +
+                           "/a.yaml]\noverrides: {entropy.lambda: [1.0e-4, 1.0e-3, 4.0e-3, "
+                           "1.0e-2]}\n";
+  write_text(dir + "/sweep.yaml", yaml);
+  const auto runs = expand_sweep(parse_sweep(yaml, "sweep.yaml").value());
+  for (const auto& r : runs) ASSERT_TRUE(prepare_run(r, nullptr).ok());
+  // 0: done.
+  write_text(runs[0].dir + "/metrics.json",
+             "{\"format\": \"crpgs.run_metrics/1\", \"method\": \"a\", \"size_bytes\": 2563198, "
+             "\"psnr_mean\": 27.4561, \"train_seconds\": 18720}\n");
+  // 1: running (this process holds its lock), its log with plain progress lines.
+  auto lock = lock_directory(runs[1].dir);
+  ASSERT_TRUE(lock.ok() && lock->held());
+  write_text(runs[1].dir + "/stderr.log",
+             "== header\ntrain  43% 13029/30000 0.7/s 13m02s ETA 6h24m loss 0.02\n"
+             "train  43% 13030/30000 0.7/s 13m12s ETA 6h22m loss 0.0219  test PSNR 27.46 dB\n");
+  // 2: stopped, with a checkpoint; its log ends in a TTY redraw.
+  write_text(runs[2].dir + "/checkpoint.pt", "x");
+  write_text(runs[2].dir + "/.running", "started\n");
+  write_text(runs[2].dir + "/stderr.log",
+             "\r\033[Ktrain [#...] 0% 139/40000 5.3/s 26.0s ETA 2h05m a\r\033[Ktrain [#...] 0% "
+             "140/40000 5.4/s 26.1s ETA 2h03m b\ninterrupted\n");
+  // 3: waiting.
+  std::string out;
+  {
+    FILE* p =
+        popen(("'" + std::string(CRPGS_CLI_PATH) + "' sweep '" + dir + "/sweep.yaml' --status 2>&1")
+                  .c_str(),
+              "r");
+    ASSERT_NE(p, nullptr);
+    char buf[512];
+    while (std::fgets(buf, sizeof buf, p)) out += buf;
+    ASSERT_EQ(pclose(p), 0) << out;
+  }
+  EXPECT_NE(out.find("4 runs in " + dir + "/runs: 1 done, 1 running, 1 stopped, 1 waiting"),
+            std::string::npos)
+      << out;
+  EXPECT_NE(out.find("27.456 dB, 2563198 B, trained 5h12m"), std::string::npos) << out;
+  EXPECT_NE(out.find("running (pid " + std::to_string(getpid())), std::string::npos) << out;
+  EXPECT_NE(out.find("13030/30000, 0.7 it/s, ETA 6h22m"), std::string::npos) << out;
+  EXPECT_NE(out.find("last seen 140/40000"), std::string::npos) << out;
+  EXPECT_FALSE(fs::exists(runs[3].dir + "/stdout.log"));  // nothing ran
+#endif
+}
+
 TEST(Sweep, SlurmScriptHasArrayAndResources) {
   const std::string dir = fresh_dir("slurm_script");
   auto spec = parse_sweep(sweep_yaml(dir, ""), "s.yaml");
