@@ -14,6 +14,7 @@
 #include "crpgs/experiments/sweep.h"
 #include "crpgs/scene_generator.h"
 #include "crpgs/trainer.h"
+#include "experiments/exp_test_util.h"
 #include "raster/cpu_rasterizer.h"
 #include "train/rate_test_util.h"
 
@@ -269,6 +270,12 @@ TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
   auto junk = prefix_test_trainer(high, bad_dir);
   EXPECT_EQ(junk->iteration(), 0);
   EXPECT_NE(junk->prefix_status().find("not used"), std::string::npos) << junk->prefix_status();
+  // Moved aside, so that this run publishes a good one for the others.
+  EXPECT_TRUE(std::filesystem::exists(bad_dir + "/" + key + ".pt.unusable"));
+  EXPECT_FALSE(std::filesystem::exists(bad_dir + "/" + key + ".pt"));
+  ASSERT_TRUE(junk->train().ok());
+  EXPECT_TRUE(same_state(*junk, *alone));
+  EXPECT_TRUE(std::filesystem::exists(bad_dir + "/" + key + ".pt"));
   ASSERT_TRUE(first->save_checkpoint(bad_dir + "/" + key + ".pt").ok());  // iteration 30
   auto late = prefix_test_trainer(high, bad_dir);
   EXPECT_EQ(late->iteration(), 0);
@@ -303,6 +310,47 @@ TEST(RateTraining, SweepAndTrainerAgreeOnTheSharedPrefixKey) {
     keys.insert(shared_prefix_key(cfg.value()));
   }
   EXPECT_EQ(keys.size(), 2u);  // HAC's four weights share one prefix, CRP-GS's another
+}
+
+// With real keys the sweep starts the first run of a group without a prefix before the runs of
+// a group whose prefix is published (they can start any time from it).
+TEST(RateTraining, SweepStartsTheRunsThatComputeAPrefixFirst) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/prefix_order";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  auto write = [](const std::string& path, const std::string& text) {
+    ASSERT_TRUE(write_file_atomic(path, text).ok());
+  };
+  for (const char* name : {"a", "b"})
+    write(dir + "/" + name + ".yaml",
+          std::string("dataset: {format: synthetic}\ncontext: {type: hash_grid}\n"
+                      "entropy: {type: gaussian}\ntrain: {seed: ") +
+              (name[0] == 'a' ? "1" : "2") + "}\n");
+  const std::string yaml = "output: " + dir + "/runs\nconfigs: [" + dir + "/a.yaml, " + dir +
+                           "/b.yaml]\noverrides: {rate.lambda: [1.0e-4, 1.0e-3]}\n";
+  const auto runs = experiments::expand_sweep(experiments::parse_sweep(yaml, "s.yaml").value());
+  ASSERT_EQ(runs.size(), 4u);  // a/1e-4, a/1e-3, b/1e-4, b/1e-3
+  experiments::ExecOptions opt;
+  opt.runner = experiments::test::write_fake_runner(dir);
+  opt.registry = &test::rate_registry();
+  opt.prefix_dir = dir + "/runs/prefixes";
+  opt.workers = 1;
+  std::vector<std::string> started;
+  opt.log = [&](const std::string& line) {
+    if (line.find(": started") != std::string::npos) started.push_back(line);
+  };
+  // a's prefix is published; b's is not: both b runs go first (the fake runner publishes none).
+  std::filesystem::create_directories(opt.prefix_dir);
+  const std::string key_a =
+      shared_prefix_key(experiments::build_run_config(runs[0], opt.registry).value());
+  write(opt.prefix_dir + "/" + key_a + ".pt", "x");
+  ASSERT_TRUE(experiments::run_sweep_local(runs, opt).ok());
+  ASSERT_EQ(started.size(), 4u);
+  const char* order[] = {"b/lambda-1.0e-4", "b/lambda-1.0e-3", "a/lambda-1.0e-4",
+                         "a/lambda-1.0e-3"};
+  for (size_t i = 0; i < 4; ++i)
+    EXPECT_NE(started[i].find(order[i]), std::string::npos) << i << ": " << started[i];
 }
 
 TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {

@@ -146,8 +146,9 @@ class Trainer {
   Status save_checkpoint(const std::string& path) const;
   Status load_checkpoint(const std::string& path);
   /// Continues from a shared prefix (a state published at iteration schedule.rate_start by a run
-  /// whose config has the same shared_prefix_key). On any error (unreadable, another iteration,
-  /// another model) the trainer is left exactly as it was and the error says why.
+  /// whose config has the same shared_prefix_key). When the prefix is unusable (unreadable,
+  /// another iteration, another model) the trainer is left exactly as it was and the status says
+  /// why; kInternal only when it could not be put back (then it must not be used).
   Status start_from_prefix(const std::string& path);
   /// One line on the shared prefix for the log: the one this run started from, or why one was
   /// not used; "" when none was looked for.
@@ -228,8 +229,8 @@ struct SetupOptions {
   std::string output_dir;  ///< overrides nothing in the config; where checkpoints go
   bool resume = false;     ///< continue from output_dir/checkpoint.pt if it exists
   /// Shared training prefixes (rate path only): a run without its own checkpoint starts from
-  /// prefix_dir/<shared_prefix_key>.pt when present, and every run publishes it at
-  /// schedule.rate_start when absent. "" = off.
+  /// prefix_dir/<shared_prefix_key>.pt when present (an unusable one is renamed *.unusable), and
+  /// every run publishes it at schedule.rate_start when absent. "" = off.
   std::string prefix_dir{};  // {}: SetupOptions{dir, resume} may leave it out
 };
 

@@ -328,8 +328,12 @@ Status Trainer::start_from_prefix(const std::string& path) {
     st = Status(StatusCode::kInvalidArgument,
                 path + " holds iteration " + std::to_string(iteration_) + ", not rate_start (" +
                     std::to_string(options_.schedule.rate_start) + ")");
-  if (!st.ok()) CRPGS_RETURN_IF_ERROR(restore_state(fresh_bytes, "the fresh state", false));
-  return st;
+  if (st.ok()) return st;
+  if (Status back = restore_state(fresh_bytes, "the fresh state", false); !back.ok())
+    return Status(StatusCode::kInternal,
+                  st.message() + "; the fresh state could not be restored: " + back.message());
+  return st.code() == StatusCode::kInternal ? Status(StatusCode::kInvalidArgument, st.message())
+                                            : st;
 }
 
 void Trainer::publish_prefix(ProgressCallback* progress) const {
@@ -416,6 +420,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
                              ? &dataset_.test.front()
                              : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
   // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
+  // Resumed exactly at rate_start (killed between its checkpoint and the publish).
+  if (iteration_ == sc.rate_start) publish_prefix(progress);
   if (last_good_iteration_ != iteration_) {
     auto bytes = serialize_state();
     if (!bytes.ok()) return bytes.status();
@@ -848,12 +854,20 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   }
   const std::string& prefix = train_options.prefix_path;
   if (!prefix.empty() && trainer->iteration() == 0 && std::filesystem::exists(prefix)) {
-    // A bad prefix costs only the time it would have saved: train from the start.
+    // A bad prefix costs only the time it would have saved: train from the start, and move it
+    // aside so that this run publishes a good one (every run of its key would refuse it).
     const Status st = trainer->start_from_prefix(prefix);
-    trainer->set_prefix_status(
-        st.ok() ? "started at iteration " + std::to_string(trainer->iteration()) +
-                      " from the shared prefix " + prefix
-                : "shared prefix not used, training from the start: " + st.message());
+    if (st.code() == StatusCode::kInternal) return st;
+    std::string status = "started at iteration " + std::to_string(trainer->iteration()) +
+                         " from the shared prefix " + prefix;
+    if (!st.ok()) {
+      std::error_code ec;
+      std::filesystem::rename(prefix, prefix + ".unusable", ec);
+      status = "shared prefix not used (" +
+               (ec ? "left in place" : "moved to " + prefix + ".unusable") +
+               "), training from the start: " + st.message();
+    }
+    trainer->set_prefix_status(status);
   }
   return trainer;
 }
