@@ -1,4 +1,5 @@
 // The compute runtime's view of the BLAS.
+#include <dlfcn.h>
 #include <gtest/gtest.h>
 
 #include <cstdlib>
@@ -21,6 +22,23 @@ TEST(Runtime, BlasIsOpenBlasAndNamesItsKernels) {
       EXPECT_EQ(kernels, "OpenBLAS " + want);
     }
   }
+}
+
+// Checkpoints record which build wrote them: the id comes from the crpgs objects loaded, so
+// loading one more (a plugin) changes it, and it is the same every time it is asked.
+TEST(Runtime, CodeBuildIdFollowsTheLoadedCrpgsObjects) {
+  const std::string before = code_build_id();
+  ASSERT_EQ(before.size(), 16u) << before;  // libcrpgs.so, libcrpgs_base.so are linked
+  EXPECT_EQ(before.find_first_not_of("0123456789abcdef"), std::string::npos) << before;
+  EXPECT_EQ(code_build_id(), before);
+  // A crpgs object this process has not loaded yet (the registry loads the real plugins).
+  const std::string other = std::string(CRPGS_TEST_PLUGIN_DIR) + "/libcrpgs_test_not_a_plugin.so";
+  if (dlopen(other.c_str(), RTLD_NOW | RTLD_NOLOAD))
+    GTEST_SKIP() << other << " is loaded already (an earlier test of this process)";
+  void* handle = dlopen(other.c_str(), RTLD_NOW | RTLD_LOCAL);
+  if (!handle) GTEST_SKIP() << "cannot load " << other << ": " << dlerror();
+  EXPECT_NE(code_build_id(), before);
+  // Left loaded: libraries are never unloaded here (toolchain.md, trap 4).
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 #include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/experiments/sweep.h"
+#include "crpgs/runtime.h"
 #include "crpgs/scene_generator.h"
 #include "crpgs/trainer.h"
 #include "experiments/exp_test_util.h"
@@ -253,6 +254,9 @@ TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
   EXPECT_EQ(shared->iteration(), rate_start);
   EXPECT_NE(shared->prefix_status().find("started at iteration 10"), std::string::npos)
       << shared->prefix_status();
+  // Published by this build: no note that it comes from another one.
+  EXPECT_EQ(shared->state_build_id(), code_build_id());
+  EXPECT_EQ(shared->prefix_status().find("another build"), std::string::npos);
   ASSERT_TRUE(shared->train().ok());
   auto alone = prefix_test_trainer(high, "");
   ASSERT_TRUE(alone->train().ok());

@@ -22,6 +22,12 @@ void set_compute_threads(int requested);
 /// BLAS is not OpenBLAS.
 std::string blas_kernels();
 
+/// Identifies the crpgs code in this process: a hash (16 hex digits) of the GNU build ids of
+/// every loaded crpgs library and plugin (ELF objects named libcrpgs*), which change whenever
+/// their code does. Checkpoints and shared prefixes record it, so a run can say when it continues
+/// another build's state. "" when no such object carries a build id.
+std::string code_build_id();
+
 /// Sets both pools for a scope and restores what they were.
 class ScopedComputeThreads {
  public:

@@ -153,6 +153,9 @@ class Trainer {
   /// One line on the shared prefix for the log: the one this run started from, or why one was
   /// not used; "" when none was looked for.
   const std::string& prefix_status() const { return prefix_status_; }
+  /// code_build_id() of the process that wrote the loaded checkpoint or prefix ("" for none, or
+  /// one written before checkpoints recorded it).
+  const std::string& state_build_id() const { return state_build_id_; }
   void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
@@ -198,6 +201,7 @@ class Trainer {
   double elapsed_ = 0;
   std::vector<PsnrPoint> psnr_trace_;
   std::string prefix_status_;
+  std::string state_build_id_;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip

@@ -3,9 +3,14 @@
 #include "crpgs/runtime.h"
 
 #include <dlfcn.h>
+#include <elf.h>
+#include <link.h>
 #include <malloc.h>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <map>
 #include <string>
 #include <thread>
 
@@ -74,6 +79,55 @@ void keep_freed_memory_in_heap() {
   // Blocks of any size come from the heap, and a free never trims it.
   mallopt(M_MMAP_THRESHOLD, 1 << 30);
   mallopt(M_TRIM_THRESHOLD, -1);
+}
+
+namespace {
+
+/// The NT_GNU_BUILD_ID bytes in one loaded object's PT_NOTE segments ("" if none).
+std::string gnu_build_id(const dl_phdr_info* info) {
+  for (int i = 0; i < info->dlpi_phnum; ++i) {
+    const ElfW(Phdr)& ph = info->dlpi_phdr[i];
+    if (ph.p_type != PT_NOTE) continue;
+    const auto* p = reinterpret_cast<const char*>(info->dlpi_addr + ph.p_vaddr);
+    const char* end = p + ph.p_memsz;
+    auto align4 = [](size_t n) { return (n + 3) & ~size_t(3); };
+    while (p + sizeof(ElfW(Nhdr)) <= end) {
+      ElfW(Nhdr) note;
+      std::memcpy(&note, p, sizeof note);
+      const char* name = p + sizeof note;
+      const char* desc = name + align4(note.n_namesz);
+      if (desc + note.n_descsz > end) break;
+      if (note.n_type == NT_GNU_BUILD_ID && note.n_namesz == 4 && std::memcmp(name, "GNU", 4) == 0)
+        return std::string(desc, note.n_descsz);
+      p = desc + align4(note.n_descsz);
+    }
+  }
+  return "";
+}
+
+}  // namespace
+
+std::string code_build_id() {
+  std::map<std::string, std::string> ids;  // by file name, so the load order does not matter
+  dl_iterate_phdr(
+      [](dl_phdr_info* info, size_t, void* out) {
+        const std::string path = info->dlpi_name ? info->dlpi_name : "";
+        const std::string file = path.substr(path.find_last_of('/') + 1);
+        if (file.rfind("libcrpgs", 0) == 0)
+          (*static_cast<std::map<std::string, std::string>*>(out))[file] = gnu_build_id(info);
+        return 0;
+      },
+      &ids);
+  uint64_t h = 1469598103934665603ull;  // FNV-1a 64
+  bool any = false;
+  for (const auto& [file, id] : ids) {
+    any = any || !id.empty();
+    for (unsigned char c : file + '\0' + id + '\0') h = (h ^ c) * 1099511628211ull;
+  }
+  if (!any) return "";
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
+  return hex;
 }
 
 }  // namespace crpgs

@@ -242,6 +242,9 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
+    const std::string build = code_build_id();
+    ar.write("build_id",
+             torch::tensor(std::vector<int64_t>(build.begin(), build.end()), torch::kLong));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
       trace.insert(trace.end(), {p.seconds, double(p.iteration), p.psnr});
@@ -301,8 +304,13 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     iteration_ = int(it.item<int64_t>());
     ar.read("rng", rng);
     gen_.set_state(rng);
-    // Older checkpoints have neither; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace;
+    // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
+    torch::Tensor elapsed, trace, build;
+    state_build_id_.clear();
+    if (ar.try_read("build_id", build))
+      for (int64_t c : std::vector<int64_t>(build.data_ptr<int64_t>(),
+                                            build.data_ptr<int64_t>() + build.numel()))
+        state_build_id_ += char(c);
     if (!rollback) elapsed_ = ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
     psnr_trace_.clear();
     if (ar.try_read("psnr_trace", trace) && trace.dim() == 2 && trace.size(1) == 3) {
@@ -860,6 +868,12 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
     if (st.code() == StatusCode::kInternal) return st;
     std::string status = "started at iteration " + std::to_string(trainer->iteration()) +
                          " from the shared prefix " + prefix;
+    if (st.ok() && trainer->state_build_id() != code_build_id())
+      status += std::string(" (published by ") +
+                (trainer->state_build_id().empty() ? "a build that did not record its id"
+                                                   : "another build") +
+                ": continued like a resume across builds, not bit-identical to training from "
+                "the start with this one)";
     if (!st.ok()) {
       std::error_code ec;
       std::filesystem::rename(prefix, prefix + ".unusable", ec);
