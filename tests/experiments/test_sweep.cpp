@@ -406,9 +406,12 @@ TEST(Sweep, NextRunStartsAPrefixEarlyThenUsesThem) {
   // H published: an H run starts from it.
   published.insert("H");
   EXPECT_EQ(next_run_to_start({{"H", false}, {"C", false}}, {"C"}, is_published), 0u);
-  // A waiting C with its own checkpoint is C's prefix under way: a fresh C does not start before
-  // it; with nothing else to do a worker does not wait (the first run starts).
+  // A waiting C with its own checkpoint is C's prefix under way: it goes before a fresh C, and
+  // before an H that could start from H's published prefix; with nothing else to do a worker
+  // does not wait (the first run starts).
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", true}}, {}, is_published), 1u);
+  EXPECT_EQ(next_run_to_start({{"H", false}, {"C", true}}, {}, is_published), 1u);
+  EXPECT_EQ(next_run_to_start({{"H", false}, {"C", true}}, {"C"}, is_published), 0u);
   published.clear();
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", false}}, {"C"}, is_published), 0u);
 }

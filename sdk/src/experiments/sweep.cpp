@@ -342,19 +342,21 @@ std::string exit_text(int status) {
 size_t next_run_to_start(const std::vector<PendingRun>& pending,
                          const std::vector<std::string>& running,
                          const std::function<bool(const std::string&)>& published) {
-  // A group's prefix is under way in a running run or in a waiting one with a checkpoint.
-  auto under_way = [&](const std::string& key) {
-    return std::find(running.begin(), running.end(), key) != running.end() ||
-           std::any_of(pending.begin(), pending.end(), [&](const PendingRun& p) {
-             return p.has_checkpoint && p.prefix_key == key;
-           });
+  // Runs that compute a prefix others wait for: first a stopped one of a group whose prefix is
+  // not published and that has no running run (it may be on its way to rate_start), then the
+  // first of a group nobody has started.
+  auto needed = [&](const PendingRun& p) {
+    return !p.prefix_key.empty() && !published(p.prefix_key) &&
+           std::find(running.begin(), running.end(), p.prefix_key) == running.end();
   };
-  for (size_t i = 0; i < pending.size(); ++i) {
-    const PendingRun& p = pending[i];
-    if (!p.prefix_key.empty() && !p.has_checkpoint && !published(p.prefix_key) &&
-        !under_way(p.prefix_key))
+  for (size_t i = 0; i < pending.size(); ++i)
+    if (pending[i].has_checkpoint && needed(pending[i])) return i;
+  for (size_t i = 0; i < pending.size(); ++i)
+    if (needed(pending[i]) &&
+        std::none_of(pending.begin(), pending.end(), [&](const PendingRun& q) {
+          return q.has_checkpoint && q.prefix_key == pending[i].prefix_key;
+        }))
       return i;
-  }
   for (size_t i = 0; i < pending.size(); ++i) {
     const PendingRun& p = pending[i];
     if (p.prefix_key.empty() || p.has_checkpoint || published(p.prefix_key)) return i;

@@ -122,9 +122,10 @@ struct PendingRun {
   bool has_checkpoint = false;  ///< resumes from its own checkpoint
 };
 
-/// Index into `pending` of the run to start next: first one whose group's prefix is neither
-/// published nor under way (in a running run, or a waiting one with a checkpoint), so that it
-/// gets computed early; then one that needs no prefix (published, own checkpoint, or nothing to
+/// Index into `pending` of the run to start next, so that each group's prefix is computed once
+/// and early: first a run with its own checkpoint in a group whose prefix is neither published
+/// nor in a running run (it may be on its way to rate_start), then the first run of a group
+/// nobody has started; then one that needs no prefix (published, own checkpoint, or nothing to
 /// share); else the first (a worker does not wait for a prefix). `running`: prefix keys of the
 /// running runs; `published(key)`: the prefix file exists. Sweep order within each class.
 /// `pending` must be non-empty.
