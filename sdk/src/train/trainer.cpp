@@ -427,9 +427,9 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   const View* held_out = !dataset_.test.empty()
                              ? &dataset_.test.front()
                              : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
-  // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
   // Resumed exactly at rate_start (killed between its checkpoint and the publish).
   if (iteration_ == sc.rate_start) publish_prefix(progress);
+  // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
   if (last_good_iteration_ != iteration_) {
     auto bytes = serialize_state();
     if (!bytes.ok()) return bytes.status();
