@@ -8,6 +8,7 @@
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/coding/bitstream.h"
+#include "crpgs/hashing.h"
 #include "crpgs/trainer.h"
 
 namespace crpgs::cli {
@@ -118,10 +119,10 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   auto ct = coding::ContainerReader::read_file(path);
   if (!ct.ok()) return report_error(ct.status());
   const double total = double(ct->file_size);
-  std::printf("%s: %llu bytes (%.4f MiB), container %u.%u, config hash %016llx, %zu sections\n\n",
+  std::printf("%s: %llu bytes (%.4f MiB), container %u.%u, config hash %s, %zu sections\n\n",
               path.c_str(), static_cast<unsigned long long>(ct->file_size), total / 1048576.0,
-              ct->header.major, ct->header.minor,
-              static_cast<unsigned long long>(ct->header.config_hash), ct->sections.size());
+              ct->header.major, ct->header.minor, hex64(ct->header.config_hash).c_str(),
+              ct->sections.size());
   std::vector<std::vector<std::string>> rows = {
       {"SECTION", "CATEGORY", "COMPONENT", "VERSION", "BYTES", "%"}};
   std::map<std::string, uint64_t> by_category;

@@ -84,7 +84,8 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
       if (spec.share_prefix)
         if (auto cfg = ex::build_run_config(r, &registry); cfg.ok()) {
           const std::string key = shared_prefix_key(cfg.value());
-          if (!key.empty() && fs::exists(fs::path(runs_dir) / "prefixes" / (key + ".pt"), ec))
+          if (!key.empty() &&
+              fs::exists(shared_prefix_path(ex::sweep_prefix_dir(runs_dir), key), ec))
             row[1] += " (will start from its shared prefix)";
         }
     }
@@ -110,7 +111,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.dry_run = a.dry_run;
   opt.sweep_size = static_cast<int>(runs.size());
   opt.stop = &g_stop;
-  if (spec->share_prefix) opt.prefix_dir = (fs::path(runs_dir) / "prefixes").string();
+  if (spec->share_prefix) opt.prefix_dir = ex::sweep_prefix_dir(runs_dir);
   std::signal(SIGINT, on_stop_signal);
   std::signal(SIGTERM, on_stop_signal);
   // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.

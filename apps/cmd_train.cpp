@@ -7,6 +7,7 @@
 #include "cli_common.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
+#include "crpgs/hashing.h"
 #include "crpgs/runtime.h"
 #include "crpgs/trainer.h"
 #include "progress_bar.h"
@@ -154,9 +155,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
              : cfg.file().empty() || cfg.file()[0] == '<' ? "demo"
                                                           : fs::path(cfg.file()).stem().string();
   m.dataset = t.dataset().name;
-  char hash[32];
-  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(cfg.hash()));
-  m.config_hash = hash;
+  m.config_hash = hex64(cfg.hash());
   m.train_seconds = train_s;
   for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
   m.peak_memory_bytes = experiments::peak_rss_bytes();

@@ -16,4 +16,7 @@ namespace crpgs {
 /// hex digits; "" for a config without the rate path (no `context` section).
 std::string shared_prefix_key(const Config& resolved);
 
+/// Where the prefix of `key` is published in the prefix directory `dir`.
+std::string shared_prefix_path(const std::string& dir, const std::string& key);
+
 }  // namespace crpgs

@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "crpgs/atomic_file.h"
+#include "crpgs/hashing.h"
 #include "crpgs/registry.h"
 
 namespace crpgs {
@@ -323,9 +324,7 @@ Status Config::save(const std::string& path) const {
 }
 
 uint64_t Config::hash() const {
-  uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : dump()) h = (h ^ c) * 1099511628211ull;
-  return h;
+  return fnv1a64(dump());
 }
 
 }  // namespace crpgs

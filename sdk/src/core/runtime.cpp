@@ -16,6 +16,8 @@
 
 #include <ATen/Parallel.h>
 
+#include "crpgs/hashing.h"
+
 namespace crpgs {
 namespace {
 
@@ -118,16 +120,13 @@ std::string code_build_id() {
         return 0;
       },
       &ids);
-  uint64_t h = 1469598103934665603ull;  // FNV-1a 64
+  uint64_t h = kFnv1a64Offset;
   bool any = false;
   for (const auto& [file, id] : ids) {
     any = any || !id.empty();
-    for (unsigned char c : file + '\0' + id + '\0') h = (h ^ c) * 1099511628211ull;
+    h = fnv1a64(file + '\0' + id + '\0', h);
   }
-  if (!any) return "";
-  char hex[17];
-  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
-  return hex;
+  return any ? hex64(h) : "";
 }
 
 }  // namespace crpgs

@@ -179,6 +179,10 @@ StatusOr<SweepSpec> load_sweep(const std::string& path) {
   return parse_sweep(std::string(bytes.begin(), bytes.end()), path);
 }
 
+std::string sweep_prefix_dir(const std::string& runs_dir) {
+  return (fs::path(runs_dir) / "prefixes").string();
+}
+
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir_in) {
   const std::string runs_dir = runs_dir_in.empty() ? spec.output : runs_dir_in;
   // Short labels for grid keys: the last part, or the whole key where last parts collide.
@@ -408,7 +412,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     std::vector<std::string> running;
     for (const Active& a : active) running.push_back(prefix_key[a.run]);
     const size_t i = next_run_to_start(pending, running, [&](const std::string& key) {
-      return fs::exists(fs::path(opt.prefix_dir) / (key + ".pt"), ec);
+      return fs::exists(shared_prefix_path(opt.prefix_dir, key), ec);
     });
     const SweepRun* r = todo[i];
     todo.erase(todo.begin() + std::ptrdiff_t(i));

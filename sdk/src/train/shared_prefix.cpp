@@ -1,7 +1,9 @@
 /// @file shared_prefix.cpp
 #include "crpgs/shared_prefix.h"
 
-#include <cstdio>
+#include <filesystem>
+
+#include "crpgs/hashing.h"
 
 namespace crpgs {
 
@@ -11,9 +13,11 @@ std::string shared_prefix_key(const Config& resolved) {
   if (!blanked.ok()) return "";
   for (const char* key : {"rate.lambda=0", "rate.mask_lambda=0"})
     if (!blanked->apply_override(key).ok()) return "";
-  char hex[17];
-  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(blanked->hash()));
-  return hex;
+  return hex64(blanked->hash());
+}
+
+std::string shared_prefix_path(const std::string& dir, const std::string& key) {
+  return (std::filesystem::path(dir) / (key + ".pt")).string();
 }
 
 }  // namespace crpgs

@@ -773,8 +773,7 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   train_options.output_dir = setup.output_dir;
   const std::string prefix_key = setup.prefix_dir.empty() ? "" : shared_prefix_key(resolved);
   if (!prefix_key.empty())
-    train_options.prefix_path =
-        (std::filesystem::path(setup.prefix_dir) / (prefix_key + ".pt")).string();
+    train_options.prefix_path = shared_prefix_path(setup.prefix_dir, prefix_key);
   // 2. Threads (libtorch starts with one here) and the allocator.
   set_compute_threads(train_options.threads);
   keep_freed_memory_in_heap();

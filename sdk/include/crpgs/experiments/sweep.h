@@ -74,6 +74,9 @@ struct SweepSpec {
 StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text, const std::string& name);
 StatusOr<SweepSpec> load_sweep(const std::string& path);
 
+/// Where a sweep's runs publish their shared training prefixes: RUNS/prefixes.
+std::string sweep_prefix_dir(const std::string& runs_dir);
+
 struct SweepRun {
   int index = 0;
   std::string id;      ///< "<dataset>/<config>/<key>-<value>_...", deterministic
