@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "core/text_list.h"
 #include "crpgs/config.h"
 #include "crpgs/plugin_abi.h"
 #include "crpgs/registry.h"
@@ -104,8 +105,15 @@ TEST(Config, UnknownKeyNamesLineAndValidKeys) {
   Status st = resolve_text("features:\n  type: sfa\n  ratoi: 0.3\n");
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("test.yaml:3:3"), std::string::npos) << st.message();
-  EXPECT_NE(st.message().find("features.ratoi: unknown key"), std::string::npos) << st.message();
-  EXPECT_NE(st.message().find("ratio"), std::string::npos) << st.message();
+  EXPECT_NE(st.message().find("features.ratoi: unknown key, did you mean 'ratio'? (valid keys: "),
+            std::string::npos)
+      << st.message();
+  // Nothing near enough: no guess, only the list.
+  st = resolve_text("rate:\n  bandwidth: 3\n");
+  EXPECT_NE(st.message().find("rate.bandwidth: unknown key (valid keys: "), std::string::npos)
+      << st.message();
+  st = resolve_text("rate:\n  lamda: 0.1\n");
+  EXPECT_NE(st.message().find("did you mean 'lambda'?"), std::string::npos) << st.message();
 }
 
 TEST(Config, WrongTypeAndOutOfRange) {
@@ -130,15 +138,16 @@ TEST(Config, WrongTypeAndOutOfRange) {
 TEST(Config, UnknownTypeListsAvailableAndSearchPath) {
   Status st = resolve_text("features:\n  type: sfx\n");
   ASSERT_FALSE(st.ok());
-  EXPECT_NE(st.message().find("test.yaml:2:9: features.type: unknown features type 'sfx' "
-                              "(available: identity, sfa; plugins searched in:"),
+  EXPECT_NE(st.message().find("test.yaml:2:9: features.type: unknown features type 'sfx', did "
+                              "you mean 'sfa'? (available: identity, sfa; plugins searched in:"),
             std::string::npos)
       << st.message();
 }
 
 TEST(Config, UnknownSectionAndSyntaxError) {
   Status st = resolve_text("trian: {iterations: 3}\n");
-  EXPECT_NE(st.message().find("test.yaml:1:1: trian: unknown section"), std::string::npos)
+  EXPECT_NE(st.message().find("test.yaml:1:1: trian: unknown section, did you mean 'train'?"),
+            std::string::npos)
       << st.message();
   st = resolve_text("dataset: [1, 2\n");
   EXPECT_NE(st.message().find("YAML syntax error"), std::string::npos) << st.message();
@@ -308,6 +317,16 @@ TEST(ConfigBase, RefusesCyclesMissingFilesAndBadValues) {
   EXPECT_NE(st.message().find("number.yaml:1:7: base: expected a config file or a list"),
             std::string::npos)
       << st.message();
+}
+
+TEST(TextList, DidYouMeanGuessesOnlyANearUniqueName) {
+  EXPECT_EQ(edit_distance("lamda", "lambda"), 1u);         // a letter left out
+  EXPECT_EQ(edit_distance("hash_gird", "hash_grid"), 1u);  // two letters swapped
+  EXPECT_EQ(edit_distance("", "abc"), 3u);
+  EXPECT_EQ(did_you_mean("hash_gird", {"hash_grid", "link_cohs"}), ", did you mean 'hash_grid'?");
+  EXPECT_EQ(did_you_mean("cohs", {"link_cohs", "link_none"}), "");  // 5 edits: too far to guess
+  EXPECT_EQ(did_you_mean("bx", {"ax", "cx"}), "");                  // a tie: no guess
+  EXPECT_EQ(did_you_mean("x", {}), "");
 }
 
 }  // namespace

@@ -7,18 +7,13 @@
 #include <sstream>
 #include <utility>
 
+#include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/hashing.h"
 #include "crpgs/registry.h"
 
 namespace crpgs {
 namespace {
-
-std::string join(const std::vector<std::string>& items) {
-  std::string out;
-  for (size_t i = 0; i < items.size(); ++i) out += (i ? ", " : "") + items[i];
-  return out;
-}
 
 // Every map key must be a plain scalar: the schemas, merging and messages read keys as text.
 Status check_keys(const YAML::Node& n, const std::string& name) {
@@ -259,7 +254,8 @@ StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
   for (const auto& kv : root_) {
     const std::string key = kv.first.as<std::string>();
     if (std::find(valid.begin(), valid.end(), key) == valid.end())
-      return err(kv.first, key + ": unknown section (valid sections: " + join(valid) + ")");
+      return err(kv.first, key + ": unknown section" + did_you_mean(key, valid) +
+                               " (valid sections: " + join(valid) + ")");
   }
 
   for (const auto& s : core_sections()) {
@@ -300,7 +296,8 @@ StatusOr<Config> Config::resolve(const ComponentRegistry& registry) const {
       std::string where = join(registry.searched_dirs());
       return err(block.IsDefined() && block["type"] ? block["type"] : block,
                  std::string(s.key) + ".type: unknown " + kind_name(s.kind) + " type '" + type +
-                     "' (available: " + join(registry.types(s.kind)) + "; plugins searched in: " +
+                     "'" + did_you_mean(type, registry.types(s.kind)) +
+                     " (available: " + join(registry.types(s.kind)) + "; plugins searched in: " +
                      (where.empty() ? std::string("no directories") : where) + ")");
     }
     CRPGS_ASSIGN_OR_RETURN(YAML::Node params,

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "core/text_list.h"
 #include "crpgs/plugin.h"
 
 namespace crpgs {
@@ -208,10 +209,9 @@ StatusOr<std::shared_ptr<void>> ComponentRegistry::create_raw(crpgs_kind kind,
   const std::string type = resolved_block["type"] ? resolved_block["type"].as<std::string>() : "";
   const ComponentInfo* info = find(kind, type);
   if (!info) {
-    std::string avail;
-    for (const auto& t : types(kind)) avail += (avail.empty() ? "" : ", ") + t;
     return Status(StatusCode::kNotFound, std::string("unknown ") + kind_name(kind) + " type '" +
-                                             type + "' (available: " + avail + ")");
+                                             type + "'" + did_you_mean(type, types(kind)) +
+                                             " (available: " + join(types(kind)) + ")");
   }
   YAML::Emitter e;
   e << resolved_block;

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "core/text_list.h"
+
 namespace crpgs {
 namespace {
 
@@ -26,12 +28,6 @@ std::string fmt_number(double v) {
   std::ostringstream os;
   os << v;
   return os.str();
-}
-
-std::string join(const std::vector<std::string>& items, const char* sep = ", ") {
-  std::string out;
-  for (size_t i = 0; i < items.size(); ++i) out += (i ? sep : "") + items[i];
-  return out;
 }
 
 bool parse_int(const YAML::Node& n, long long* out) {
@@ -264,8 +260,9 @@ StatusOr<YAML::Node> validate_block(const YAML::Node& block, const Schema& schem
       if (!p) {
         std::vector<std::string> keys;
         for (const auto& q : schema.params()) keys.push_back(q.key);
-        return err(kv.first, path + "." + key + ": unknown key (valid keys: " +
-                                 (keys.empty() ? std::string("none") : join(keys)) + ")");
+        return err(kv.first,
+                   path + "." + key + ": unknown key" + did_you_mean(key, keys) +
+                       " (valid keys: " + (keys.empty() ? std::string("none") : join(keys)) + ")");
       }
       YAML::Node value;
       std::string why;

@@ -10,6 +10,7 @@
 #include <map>
 #include <set>
 
+#include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/experiments/bd_rate.h"
 #include "io/json.h"
@@ -473,11 +474,9 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
   }
   Plotter plotter(opt.gnuplot, opt.out_dir, scratch);
 
-  std::string sources;
-  for (const auto& d : runs_dirs) sources += (sources.empty() ? "" : ", ") + d;
   std::string summary =
-      std::string(runs_dirs.size() > 1 ? "Runs directories: " : "Runs directory: ") + sources +
-      "; " + std::to_string(collected.runs.size()) + " finished runs";
+      std::string(runs_dirs.size() > 1 ? "Runs directories: " : "Runs directory: ") +
+      join(runs_dirs) + "; " + std::to_string(collected.runs.size()) + " finished runs";
   if (!collected.unfinished.empty())
     summary += ", " + std::to_string(collected.unfinished.size()) + " unfinished (" + [&] {
       std::string s;

@@ -21,6 +21,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "core/text_list.h"
 #include "core/time_text.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/config.h"
@@ -91,8 +92,8 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
   for (const auto& kv : root) {
     const std::string k = kv.first.as<std::string>();
     if (!kKeys.count(k))
-      return bad(name, "unknown key '" + k +
-                           "' (expected name, output, configs, overrides, rate_key, datasets, "
+      return bad(name, "unknown key '" + k + "'" + did_you_mean(k, {kKeys.begin(), kKeys.end()}) +
+                           " (expected name, output, configs, overrides, rate_key, datasets, "
                            "resources, workers, share_prefix)");
   }
   SweepSpec s;
