@@ -3,6 +3,7 @@
 #include <string>
 
 #include "cli_common.h"
+#include "core/text_list.h"
 
 namespace crpgs::cli {
 namespace {
@@ -47,10 +48,11 @@ int describe(const GlobalOptions& g, const std::string& type, const std::string&
     print_table(rows);
   }
   if (!shown) {
-    std::string avail;
-    for (const auto& c : r.components()) avail += (avail.empty() ? "" : ", ") + c.type;
-    return report_error(Status(StatusCode::kNotFound,
-                               "no component of type '" + type + "' (available: " + avail + ")"));
+    std::vector<std::string> types;
+    for (const auto& c : r.components()) types.push_back(c.type);
+    return report_error(Status(StatusCode::kNotFound, "no component of type '" + type + "'" +
+                                                          did_you_mean(type, types) +
+                                                          " (available: " + join(types) + ")"));
   }
   return 0;
 }

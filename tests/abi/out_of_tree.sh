@@ -20,6 +20,10 @@ grep -Eq '^entropy +laplace +1\.0' <<<"$out" || fail "laplace not listed"
 grep -Eq "^entropy +gaussian .*$work/prefix/lib/crpgs/plugins" <<<"$out" || fail "installed plugins not found"
 desc=$("$crpgs" --plugin-dir "$work/build/plugins" plugins describe gain)
 grep -q 'initial value of every channel gain' <<<"$desc" || fail "describe gain"
+if err=$("$crpgs" --plugin-dir "$work/build/plugins" plugins describe gian 2>&1); then
+  fail "describe of an unknown type succeeded"
+fi
+grep -q "no component of type 'gian', did you mean 'gain'?" <<<"$err" || fail "bad message: $err"
 printf 'features:\n  type: gain\n  init: 2.5\n' >"$work/cfg.yaml"
 # Capture first: with pipefail, `grep -q` closing the pipe early would fail the writer (SIGPIPE).
 checked=$("$crpgs" --plugin-dir "$work/build/plugins" config check "$work/cfg.yaml")
