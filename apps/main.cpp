@@ -2,11 +2,15 @@
 /// @brief The `crpgs` command-line tool.
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <string>
+#include <vector>
 
 #include "cli_common.h"
+#include "core/text_list.h"
 #include "crpgs/version.h"
 
 namespace {
@@ -27,6 +31,44 @@ void restart_with_idle_threads_that_sleep(int argc, char** argv) {
        {std::pair{"OMP_WAIT_POLICY", "PASSIVE"}, std::pair{"OPENBLAS_THREAD_TIMEOUT", "4"}})
     if (!std::getenv(name)) changed = setenv(name, value, 0) == 0 || changed;
   if (changed) execv("/proc/self/exe", argv);  // if it fails, run on as we are
+}
+
+/// After a parse error: names the command or long option that does not exist and the nearest
+/// one that does ("unknown command 'trian', did you mean 'train'?"); CLI11 alone says only that a
+/// subcommand is required, or that an argument was not expected.
+void explain_unknown_names(const CLI::App& app, int argc, char** argv) {
+  const CLI::App* cmd = &app;
+  std::vector<std::string> chain;  // the commands that were recognised, e.g. {plugins}
+  while (!cmd->get_subcommands().empty()) {
+    cmd = cmd->get_subcommands().front();
+    chain.push_back(cmd->get_name());
+  }
+  std::vector<std::string> commands;
+  for (const CLI::App* sub : cmd->get_subcommands([](const CLI::App*) { return true; }))
+    commands.push_back(sub->get_name());
+  std::vector<std::string> options;
+  for (const CLI::App* a = cmd; a; a = a->get_parent())
+    for (const CLI::Option* o : a->get_options())
+      for (const std::string& n : o->get_lnames()) options.push_back("--" + n);
+  const std::string where = "crpgs" + (chain.empty() ? "" : " " + crpgs::join(chain, " "));
+  size_t recognised = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg.rfind("--", 0) == 0 && arg.size() > 2) {
+      const std::string name = arg.substr(0, arg.find('='));
+      if (std::find(options.begin(), options.end(), name) == options.end())
+        std::fprintf(stderr, "crpgs: error: unknown option '%s' for '%s'%s\n", name.c_str(),
+                     where.c_str(), crpgs::did_you_mean(name, options).c_str());
+    } else if (recognised < chain.size() && arg == chain[recognised]) {
+      ++recognised;
+    } else if (!commands.empty() && !arg.empty() && arg[0] != '-' && argv[i - 1][0] != '-') {
+      // A word where a command is expected (not an option's value).
+      std::fprintf(stderr, "crpgs: error: unknown command '%s' for '%s'%s (commands: %s)\n",
+                   arg.c_str(), where.c_str(), crpgs::did_you_mean(arg, commands).c_str(),
+                   crpgs::join(commands).c_str());
+      return;
+    }
+  }
 }
 
 }  // namespace
@@ -58,6 +100,7 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() != 0) explain_unknown_names(app, argc, argv);
     return app.exit(e);
   } catch (const crpgs::StatusError& e) {
     return report_error(e.status);

@@ -1,0 +1,55 @@
+// The CLI's answer to a misspelt command or option: what does not exist, and the nearest that does.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <string>
+
+namespace {
+
+#ifdef CRPGS_CLI_PATH
+/// `crpgs ARGS` with stderr and stdout together; *rc is its exit status.
+std::string crpgs_output(const std::string& args, int* rc) {
+  std::string out;
+  FILE* p = popen(("'" CRPGS_CLI_PATH "' " + args + " 2>&1").c_str(), "r");
+  if (!p) return out;
+  char buf[512];
+  while (std::fgets(buf, sizeof buf, p)) out += buf;
+  *rc = pclose(p);
+  return out;
+}
+#endif
+
+TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "the crpgs executable is not part of this build (CRPGS_BUILD_APPS=OFF)";
+#else
+  int rc = 0;
+  std::string out = crpgs_output("trian -c x.yaml", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(out.find("unknown command 'trian' for 'crpgs', did you mean 'train'? (commands: "),
+            std::string::npos)
+      << out;
+  // The value of a global option is not taken for a command.
+  out = crpgs_output("--plugin-dir /nonexistent trian", &rc);
+  EXPECT_NE(out.find("unknown command 'trian' for 'crpgs', did you"), std::string::npos) << out;
+  EXPECT_EQ(out.find("'/nonexistent'"), std::string::npos) << out;
+  out = crpgs_output("config chek x.yaml", &rc);
+  EXPECT_NE(out.find("unknown command 'chek' for 'crpgs config', did you mean 'check'?"),
+            std::string::npos)
+      << out;
+  out = crpgs_output("train -c x.yaml -o y --resme", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(out.find("unknown option '--resme' for 'crpgs train', did you mean '--resume'?"),
+            std::string::npos)
+      << out;
+  // Far from every name: said, without a guess.
+  out = crpgs_output("train -c x.yaml -o y --bandwidth=3", &rc);
+  EXPECT_NE(out.find("unknown option '--bandwidth' for 'crpgs train'\n"), std::string::npos) << out;
+  // A good command line says nothing of the kind.
+  out = crpgs_output("train --help", &rc);
+  EXPECT_EQ(rc, 0);
+  EXPECT_EQ(out.find("unknown"), std::string::npos) << out;
+#endif
+}
+
+}  // namespace
