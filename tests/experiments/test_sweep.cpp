@@ -102,6 +102,27 @@ TEST(Sweep, RejectsBadFiles) {
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\ndatasets: [{set: {}}]\n", "s.yaml").ok());
   auto st = parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml");
   EXPECT_NE(st.status().message().find("bogus"), std::string::npos);
+  st = parse_sweep("configs: [a.yaml]\nworker: 2\n", "s.yaml");
+  EXPECT_NE(st.status().message().find("unknown key 'worker', did you mean 'workers'? (expected "
+                                       "name, output, configs,"),
+            std::string::npos)
+      << st.status().message();
+  // A key that is not text: the message still names the file.
+  st = parse_sweep("configs: [a.yaml]\n[1, 2]: 3\n", "s.yaml");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.status().message().find("s.yaml"), std::string::npos) << st.status().message();
+  // Names that differ only where run directories cannot: refused, not merged into one run.
+  st = parse_sweep("configs: [{name: a b, path: a.yaml}, {name: a_b, path: b.yaml}]\n", "s.yaml");
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.status().message().find("two runs would share the directory 'default/a_b/base'"),
+            std::string::npos)
+      << st.status().message();
+  EXPECT_FALSE(
+      parse_sweep("configs: [a.yaml]\noverrides: {train.tag: [x/y, x_y]}\n", "s.yaml").ok());
+  // "." and ".." do not lead out of the runs directory.
+  auto dots = parse_sweep("configs: [a.yaml]\ndatasets: [{name: ..}]\n", "s.yaml");
+  ASSERT_TRUE(dots.ok()) << dots.status().message();
+  EXPECT_EQ(expand_sweep(dots.value())[0].id, "__/a/base");
   // No grid: one run per config and dataset, named "base".
   auto one = parse_sweep("configs: [a.yaml]\n", "dir/s.yaml");
   ASSERT_TRUE(one.ok());

@@ -316,6 +316,31 @@ TEST(Trainer, NonFiniteGradientIsReportedAndItsUpdateDiscarded) {
   EXPECT_EQ(t->nonfinite_parameter_group(), "");
 }
 
+// The shared prefix is published however training arrives at rate_start, here with the update
+// of that very iteration discarded (a NaN gradient).
+TEST(Trainer, SharedPrefixIsPublishedWhenTheRateStartStepIsDiscarded) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(14);
+  to.schedule.rate_start = 10;
+  const std::string dir = tmp_dir("prefix_after_discard");
+  to.prefix_path = dir + "/prefix.pt";
+  auto t = trainer(ds, to);
+  int shots = 0;
+  NanGradient nan(parameter(*t, "mlp_color.w2"), &shots);
+  WarningRecorder rec;
+  rec.at_iteration = [&](int it) { shots = it == 9 ? 1 : shots; };
+  ASSERT_TRUE(t->train(&rec).ok());
+  ASSERT_EQ(rec.warnings.size(), 1u);
+  EXPECT_EQ(rec.warnings[0].first, 10);
+  EXPECT_NE(rec.warnings[0].second.find("update discarded"), std::string::npos);
+  ASSERT_TRUE(std::filesystem::exists(to.prefix_path));
+  to.prefix_path.clear();
+  auto from_prefix = trainer(ds, to);
+  ASSERT_TRUE(from_prefix->start_from_prefix(dir + "/prefix.pt").ok());
+  EXPECT_EQ(from_prefix->iteration(), 10);
+}
+
 TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;

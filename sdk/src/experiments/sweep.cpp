@@ -62,7 +62,10 @@ std::string sanitize(const std::string& s) {
   for (char c : s)
     out +=
         (std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '+' || c == '-') ? c : '_';
-  return out.empty() ? "_" : out;
+  // "." and ".." would name the directory itself or its parent.
+  return out.empty() || out == "." || out == ".."
+             ? std::string(std::max<size_t>(1, out.size()), '_')
+             : out;
 }
 
 std::string last_part(const std::string& key) {
@@ -86,19 +89,18 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
     return bad(name, std::string("YAML error: ") + e.what());
   }
   if (!root.IsMap()) return bad(name, "a sweep file is a YAML map");
-  static const std::set<std::string> kKeys = {"name",      "output",   "configs",
-                                              "overrides", "rate_key", "datasets",
-                                              "resources", "workers",  "share_prefix"};
-  for (const auto& kv : root) {
-    const std::string k = kv.first.as<std::string>();
-    if (!kKeys.count(k))
-      return bad(name, "unknown key '" + k + "'" + did_you_mean(k, {kKeys.begin(), kKeys.end()}) +
-                           " (expected name, output, configs, overrides, rate_key, datasets, "
-                           "resources, workers, share_prefix)");
-  }
+  static const std::vector<std::string> kKeys = {"name",      "output",   "configs",
+                                                 "overrides", "rate_key", "datasets",
+                                                 "resources", "workers",  "share_prefix"};
   SweepSpec s;
   s.file = name;
   try {
+    for (const auto& kv : root) {
+      const std::string k = kv.first.as<std::string>();
+      if (std::find(kKeys.begin(), kKeys.end(), k) == kKeys.end())
+        return bad(name, "unknown key '" + k + "'" + did_you_mean(k, kKeys) + " (expected " +
+                             join(kKeys) + ")");
+    }
     s.name = root["name"] ? root["name"].as<std::string>() : fs::path(name).stem().string();
     s.output = root["output"] ? root["output"].as<std::string>() : "runs/" + s.name;
     const YAML::Node configs = root["configs"];
@@ -172,6 +174,11 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
   }
   if (s.workers < 1) return bad(name, "'workers' must be >= 1");
   if (s.resources.cpus < 1) return bad(name, "'resources.cpus' must be >= 1");
+  std::set<std::string> ids;
+  for (const SweepRun& r : expand_sweep(s, "."))
+    if (!ids.insert(r.id).second)
+      return bad(name, "two runs would share the directory '" + r.id +
+                           "' (names are kept to letters, digits, '.', '+' and '-'): rename one");
   return s;
 }
 

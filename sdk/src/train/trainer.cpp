@@ -427,8 +427,6 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   const View* held_out = !dataset_.test.empty()
                              ? &dataset_.test.front()
                              : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
-  // Resumed exactly at rate_start (killed between its checkpoint and the publish).
-  if (iteration_ == sc.rate_start) publish_prefix(progress);
   // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
   if (last_good_iteration_ != iteration_) {
     auto bytes = serialize_state();
@@ -465,6 +463,9 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     return OkStatus();
   };
   while (true) {
+    // At the loop's top, so that every way of arriving at rate_start publishes: a step, a step
+    // whose update was discarded, a roll-back's replay, a resume (publish_prefix writes once).
+    if (iteration_ == sc.rate_start) publish_prefix(progress);
     if (iteration_ >= sc.iterations) {
       Status st = checkpoint(progress);
       if (st.code() != StatusCode::kNonFinite) return st;
@@ -529,7 +530,6 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
       }
       last_checkpoint = Clock::now();
     }
-    if (it == sc.rate_start) publish_prefix(progress);
     if (control && control->stop.load()) {
       CRPGS_RETURN_IF_ERROR(checkpoint(progress));
       return Status(
