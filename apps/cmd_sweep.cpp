@@ -27,8 +27,8 @@ struct SweepArgs {
 };
 
 std::atomic<bool> g_stop{false};
-// SIGINT (Ctrl-C) and SIGTERM (e.g. Slurm's time limit): start nothing more, let the running
-// trainings checkpoint, then exit.
+// SIGINT (Ctrl-C), SIGTERM (e.g. Slurm's time limit) and SIGHUP (the terminal closed): start
+// nothing more, let the running trainings checkpoint, then exit.
 extern "C" void on_stop_signal(int) {
   g_stop = true;
 }
@@ -114,6 +114,10 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   if (spec->share_prefix) opt.prefix_dir = ex::sweep_prefix_dir(runs_dir);
   std::signal(SIGINT, on_stop_signal);
   std::signal(SIGTERM, on_stop_signal);
+  if (std::signal(SIGHUP, on_stop_signal) == SIG_IGN) std::signal(SIGHUP, SIG_IGN);  // nohup
+  // `scancel --signal=USR1` reaches every process of the task: the trainings checkpoint, the
+  // sweep goes on.
+  std::signal(SIGUSR1, SIG_IGN);
   // Tests substitute a fake trainer; normally every run is `crpgs train` of this executable.
   const char* runner = std::getenv("CRPGS_SWEEP_RUNNER");
   opt.runner = runner && *runner ? runner : ex::self_executable();

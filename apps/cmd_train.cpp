@@ -17,8 +17,8 @@ namespace {
 namespace fs = std::filesystem;
 
 TrainControl* g_control = nullptr;
-// SIGINT (Ctrl-C) and SIGTERM (e.g. Slurm at its time limit): checkpoint and stop.
-// SIGUSR1: checkpoint now and go on.
+// SIGINT (Ctrl-C), SIGTERM (e.g. Slurm at its time limit) and SIGHUP (the terminal closed):
+// checkpoint and stop. SIGUSR1: checkpoint now and go on (ignored outside training).
 extern "C" void on_signal(int sig) {
   if (!g_control) return;
   if (sig == SIGUSR1)
@@ -63,7 +63,10 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!lock->held())
     std::fprintf(stderr, "warning: %s cannot be locked here; make sure no other run writes there\n",
                  out_dir.c_str());
-  Status st = cfg.save(out_dir + "/config.yaml");
+  // `scancel --signal=USR1` during set-up or the final encode must not end the run.
+  std::signal(SIGUSR1, SIG_IGN);
+  Status st = experiments::mark_run_started(out_dir);
+  if (st.ok()) st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());
 
@@ -93,12 +96,15 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
 
   TrainControl control;
   g_control = &control;
-  const int signals[] = {SIGINT, SIGTERM, SIGUSR1};
-  void (*previous[3])(int);
-  for (int i = 0; i < 3; ++i) previous[i] = std::signal(signals[i], on_signal);
+  const int signals[] = {SIGINT, SIGTERM, SIGHUP, SIGUSR1};
+  void (*previous[4])(int);
+  for (int i = 0; i < 4; ++i) {
+    previous[i] = std::signal(signals[i], on_signal);
+    if (signals[i] == SIGHUP && previous[i] == SIG_IGN) std::signal(SIGHUP, SIG_IGN);  // nohup
+  }
   CliProgress progress(t.options().schedule.iterations, t.iteration());
   st = t.train(&progress, &control);
-  for (int i = 0; i < 3; ++i) std::signal(signals[i], previous[i]);
+  for (int i = 0; i < 4; ++i) std::signal(signals[i], previous[i]);
   g_control = nullptr;
   if (st.code() == StatusCode::kCancelled) {
     std::printf("\ninterrupted: checkpoint written to %s (continue with --resume)\n",
@@ -161,6 +167,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   m.peak_memory_bytes = experiments::peak_rss_bytes();
   st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
   if (!st.ok()) return report_error(st);
+  experiments::mark_run_finished(out_dir);
   std::printf("metrics: %s/metrics.json\n", out_dir.c_str());
   return 0;
 }

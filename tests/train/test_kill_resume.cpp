@@ -14,6 +14,7 @@
 
 #include "cli_test_util.h"
 #include "crpgs/dir_lock.h"
+#include "crpgs/experiments/sweep.h"
 
 namespace crpgs {
 namespace {
@@ -143,6 +144,63 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
     }
     EXPECT_TRUE(torch::equal(v, b.at(k))) << k;
   }
+
+  // The run directory says whether it is finished, whoever trained it (a sweep reads this):
+  // finished now; then a failing `crpgs train` into it leaves it unfinished, not with the
+  // earlier attempt's metrics passing for its own.
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete);
+  EXPECT_NE(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() +
+                              "' --set dataset.format=colmap --set dataset.path=/nonexistent",
+                          dir / "failed.log", &log),
+            0);
+  EXPECT_FALSE(fs::exists(run / "metrics.json")) << log;
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kInterrupted) << log;
+#endif
+}
+
+// SIGUSR1 writes a checkpoint and training goes on (from set-up on it never ends the process);
+// SIGHUP, like SIGINT and SIGTERM, checkpoints and stops.
+TEST(KillAndResume, Sigusr1CheckpointsAndGoesOnSighupStops) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  if (!fs::exists(CRPGS_CLI_PATH))
+    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "signals";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const fs::path cfg = dir / "tiny.yaml", run = dir / "run", log = dir / "train.log";
+  ASSERT_TRUE(write_file_atomic(cfg.string(), std::string(kConfig)).ok());
+  // No checkpoints of its own: one that appears was asked for.
+  const pid_t pid = test::spawn_cli(
+      {"train", "-c", cfg.string(), "-o", run.string(), "--set", "train.iterations=100000", "--set",
+       "train.checkpoint_interval=0", "--set", "train.checkpoint_minutes=0"},
+      log);
+  ASSERT_GT(pid, 0);
+  auto alive = [&] { return waitpid(pid, nullptr, WNOHANG) == 0; };
+  const auto deadline = Clock::now() + std::chrono::seconds(60);
+  // Before this line the process may still be restarting itself (main.cpp): no handler yet.
+  while (test::read_text(log).find("resolved config") == std::string::npos && alive() &&
+         Clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  while (!fs::exists(run / "checkpoint.pt") && alive() && Clock::now() < deadline) {
+    kill(pid, SIGUSR1);
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+  ASSERT_TRUE(alive()) << test::read_text(log);
+  ASSERT_TRUE(fs::exists(run / "checkpoint.pt")) << test::read_text(log);
+  const int64_t saved_at =
+      test::read_archive(run / "checkpoint.pt").at("iteration").item<int64_t>();
+  EXPECT_GT(saved_at, 0);
+  kill(pid, SIGHUP);
+  int status = 0;
+  ASSERT_EQ(wait_for(pid, &status), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << test::read_text(log);
+  EXPECT_EQ(WEXITSTATUS(status), 130) << test::read_text(log);
+  EXPECT_NE(test::read_text(log).find("interrupted: checkpoint written"), std::string::npos)
+      << test::read_text(log);
+  EXPECT_GE(test::read_archive(run / "checkpoint.pt").at("iteration").item<int64_t>(), saved_at);
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kInterrupted);
 #endif
 }
 

@@ -18,9 +18,15 @@ Status write_file_atomic(const std::string& path, std::string_view bytes) {
   const fs::path target(path);
   std::error_code ec;
   if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
-  const std::string tmp =
-      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(counter.fetch_add(1));
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  // O_EXCL: on shared storage two hosts' processes can have the same pid; a name in use is
+  // skipped, never written by two processes at once.
+  std::string tmp;
+  int fd = -1;
+  for (int attempt = 0; fd < 0 && attempt < 100; ++attempt) {
+    tmp = path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(counter.fetch_add(1));
+    fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    if (fd < 0 && errno != EEXIST) break;
+  }
   if (fd < 0)
     return Status(StatusCode::kIoError, "cannot create " + tmp + ": " + std::strerror(errno));
   size_t done = 0;
@@ -36,20 +42,27 @@ Status write_file_atomic(const std::string& path, std::string_view bytes) {
     done += size_t(n);
   }
   if (::fsync(fd) != 0 || ::close(fd) != 0) {
+    const std::string why = std::strerror(errno);
     ::unlink(tmp.c_str());
-    return Status(StatusCode::kIoError, "cannot flush " + tmp);
+    return Status(StatusCode::kIoError, "cannot flush " + tmp + ": " + why);
   }
   if (::rename(tmp.c_str(), path.c_str()) != 0) {
     const std::string why = std::strerror(errno);
     ::unlink(tmp.c_str());
     return Status(StatusCode::kIoError, "cannot rename " + tmp + " to " + path + ": " + why);
   }
+  // The rename itself survives a power loss only once the directory is on disk.
+  const std::string dir = target.has_parent_path() ? target.parent_path().string() : ".";
+  if (const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
   return OkStatus();
 }
 
 StatusOr<std::vector<uint8_t>> read_file_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) return Status(StatusCode::kIoError, "cannot open " + path);
+  if (!in) return Status(StatusCode::kIoError, "cannot open " + path + ": " + std::strerror(errno));
   in.seekg(0, std::ios::end);
   const auto size = in.tellg();
   if (size < 0) return Status(StatusCode::kIoError, "cannot read " + path);

@@ -372,6 +372,8 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
       if (it->is_regular_file() && (name == "metrics.json" || name == "run.json"))
         dirs.push_back(it->path().parent_path());
     }
+    // A walk that stopped early would leave runs out of the tables without a word.
+    if (ec) return Status(StatusCode::kIoError, "cannot read " + runs_dir + ": " + ec.message());
     std::sort(dirs.begin(), dirs.end());
     dirs.erase(std::unique(dirs.begin(), dirs.end()), dirs.end());
     for (const auto& d : dirs) {
@@ -380,7 +382,7 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
       r.dir = dir;
       r.id = fs::relative(d, runs_dir, ec).string();
       auto m = read_run_metrics(dir + "/metrics.json");
-      const bool finished = m.ok() && !fs::exists(d / ".running", ec);
+      const bool finished = m.ok() && !run_marked_started(dir);
       if (finished) {
         r.metrics = std::move(m).value();
         r.method = r.metrics.method;

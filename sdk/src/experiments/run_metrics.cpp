@@ -3,6 +3,9 @@
 
 #include <sys/resource.h>
 
+#include <filesystem>
+
+#include "core/time_text.h"
 #include "crpgs/atomic_file.h"
 #include "io/json.h"
 #include "io/json_writer.h"
@@ -146,6 +149,28 @@ StatusOr<RunMetrics> read_run_metrics(const std::string& path) {
   auto m = run_metrics_from_json(std::string(bytes.begin(), bytes.end()));
   if (!m.ok()) return Status(m.status().code(), path + ": " + m.status().message());
   return m;
+}
+
+namespace {
+std::string marker(const std::string& run_dir) {
+  return run_dir + "/.running";
+}
+}  // namespace
+
+Status mark_run_started(const std::string& run_dir) {
+  std::error_code ec;
+  std::filesystem::remove(run_dir + "/metrics.json", ec);  // stale from an earlier attempt
+  return write_file_atomic(marker(run_dir), "started " + local_time_text() + "\n");
+}
+
+void mark_run_finished(const std::string& run_dir) {
+  std::error_code ec;
+  std::filesystem::remove(marker(run_dir), ec);
+}
+
+bool run_marked_started(const std::string& run_dir) {
+  std::error_code ec;
+  return std::filesystem::exists(marker(run_dir), ec);
 }
 
 }  // namespace crpgs::experiments

@@ -285,7 +285,7 @@ Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
 
 RunState run_state(const std::string& run_dir) {
   std::error_code ec;
-  if (fs::exists(run_dir + "/.running", ec)) return RunState::kInterrupted;
+  if (run_marked_started(run_dir)) return RunState::kInterrupted;
   if (!fs::exists(run_dir + "/metrics.json", ec)) return RunState::kPending;
   return read_run_metrics(run_dir + "/metrics.json").ok() ? RunState::kComplete
                                                           : RunState::kPending;
@@ -303,9 +303,7 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   std::error_code ec;
   const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
   CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
-  fs::remove(run.dir + "/metrics.json", ec);  // stale from an interrupted attempt
-  CRPGS_RETURN_IF_ERROR(
-      write_file_atomic(run.dir + "/.running", "started " + local_time_text() + "\n"));
+  CRPGS_RETURN_IF_ERROR(mark_run_started(run.dir));
 
   std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",
                                    "-o",       run.dir, "--method", run.method};
@@ -337,7 +335,7 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
   const int rc = posix_spawn(&pid, opt.runner.c_str(), &fa, nullptr, argv.data(), environ);
   posix_spawn_file_actions_destroy(&fa);
   if (rc != 0) {
-    fs::remove(run.dir + "/.running", ec);
+    mark_run_finished(run.dir);  // nothing ran: back to pending
     return Status(StatusCode::kInternal, "cannot start " + opt.runner + ": " + std::strerror(rc));
   }
   return pid;
@@ -450,20 +448,20 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       active.push_back({pid.value(), &r});
     }
     if (active.empty()) continue;
+    // Poll our own children only (a caller of the SDK may have others), which also lets a stop
+    // flag be noticed while the runs go on.
     int status = 0;
-    // With a stop flag, poll: a blocking wait would not notice it until a run ends.
-    const pid_t done = waitpid(-1, &status, opt.stop ? WNOHANG : 0);
-    if (done == 0) {
+    auto it = active.begin();
+    for (; it != active.end(); ++it) {
+      const pid_t done = waitpid(it->pid, &status, WNOHANG);
+      if (done == it->pid) break;
+      if (done < 0 && errno != EINTR)
+        return Status(StatusCode::kInternal, std::string("waitpid: ") + std::strerror(errno));
+    }
+    if (it == active.end()) {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
       continue;
     }
-    if (done < 0) {
-      if (errno == EINTR) continue;
-      return Status(StatusCode::kInternal, std::string("waitpid: ") + std::strerror(errno));
-    }
-    auto it =
-        std::find_if(active.begin(), active.end(), [&](const Active& a) { return a.pid == done; });
-    if (it == active.end()) continue;  // not ours
     const SweepRun& r = *it->run;
     active.erase(it);
     const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
@@ -471,7 +469,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     auto metrics = read_run_metrics(r.dir + "/metrics.json");
     std::error_code ec;
     if (exited_ok && metrics.ok()) {
-      fs::remove(r.dir + "/.running", ec);
+      mark_run_finished(r.dir);
       ++sum.succeeded;
       char buf[128];
       std::snprintf(buf, sizeof buf, ": done (%.3f dB, %llu bytes)", metrics->psnr_mean,

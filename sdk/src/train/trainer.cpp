@@ -298,7 +298,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       torch::Tensor t;
       if (ar.try_read(archive_key("model." + key), t)) state[key] = t;
     }
-    CRPGS_RETURN_IF_ERROR(model_->load_state_dict(state));
+    if (Status st = model_->load_state_dict(state); !st.ok())
+      return Status(st.code(), origin + ": " + st.message());
     torch::Tensor it, rng;  // read() into a defined tensor would resize it in place
     ar.read("iteration", it);
     iteration_ = int(it.item<int64_t>());

@@ -85,4 +85,12 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text);
 Status write_run_metrics(const std::string& path, const RunMetrics& m);
 StatusOr<RunMetrics> read_run_metrics(const std::string& path);
 
+/// A run directory is finished when RUN/metrics.json is readable and no RUN/.running marker is
+/// left: whoever trains it (a sweep or `crpgs train`) marks it started before training, which
+/// also removes an older metrics.json, and finished after writing the new one, so a crashed
+/// attempt never passes for finished and a finished one never for unfinished.
+Status mark_run_started(const std::string& run_dir);
+void mark_run_finished(const std::string& run_dir);
+bool run_marked_started(const std::string& run_dir);
+
 }  // namespace crpgs::experiments
