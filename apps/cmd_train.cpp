@@ -81,10 +81,14 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!t.prefix_status().empty())
     std::printf("%s\n", t.prefix_status().c_str());
   else if (t.iteration() > 0)
-    std::printf("resumed at iteration %d%s\n", t.iteration(),
+    std::printf("resumed at iteration %d%s%s\n", t.iteration(),
                 t.state_build_id().empty() || t.state_build_id() == code_build_id()
                     ? ""
-                    : " (a checkpoint of another build)");
+                    : " (a checkpoint of another build)",
+                t.state_config_hash().empty() || t.state_config_hash() == t.options().config_hash
+                    ? ""
+                    : " (written under another config: training goes on with this one, "
+                      "config.yaml)");
   const char *omp_wait = std::getenv("OMP_WAIT_POLICY"),
              *blas_timeout = std::getenv("OPENBLAS_THREAD_TIMEOUT");
   std::printf("idle compute threads: OMP_WAIT_POLICY=%s, OPENBLAS_THREAD_TIMEOUT=%s\n",

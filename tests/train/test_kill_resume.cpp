@@ -127,6 +127,7 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
   if (resumed_from > 0) {
     EXPECT_NE(log.find("resumed at iteration " + std::to_string(resumed_from)), std::string::npos)
         << log;
+    EXPECT_EQ(log.find("another config"), std::string::npos) << log;  // the same config
   }
   std::printf("resumed from iteration %d\n", resumed_from);
 
@@ -199,8 +200,25 @@ TEST(KillAndResume, Sigusr1CheckpointsAndGoesOnSighupStops) {
   EXPECT_EQ(WEXITSTATUS(status), 130) << test::read_text(log);
   EXPECT_NE(test::read_text(log).find("interrupted: checkpoint written"), std::string::npos)
       << test::read_text(log);
-  EXPECT_GE(test::read_archive(run / "checkpoint.pt").at("iteration").item<int64_t>(), saved_at);
+  const int64_t stopped_at =
+      test::read_archive(run / "checkpoint.pt").at("iteration").item<int64_t>();
+  EXPECT_GE(stopped_at, saved_at);
   EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kInterrupted);
+
+  // Resumed under another config (here two more iterations): it goes on, and says so.
+  std::string out;
+  ASSERT_EQ(
+      test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() +
+                        "' --resume --set train.iterations=" + std::to_string(stopped_at + 2) +
+                        " --set train.checkpoint_interval=0 --set train.checkpoint_minutes=0",
+                    dir / "resume.log", &out),
+      0)
+      << out;
+  EXPECT_NE(out.find("resumed at iteration " + std::to_string(stopped_at) +
+                     " (written under another config"),
+            std::string::npos)
+      << out;
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete);
 #endif
 }
 

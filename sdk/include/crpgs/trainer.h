@@ -72,6 +72,9 @@ struct TrainOptions {
   /// training that the rate weights do not touch (see shared_prefix_key); written once, when
   /// absent. "" = nowhere.
   std::string prefix_path;
+  /// hex64 of the resolved config, recorded in checkpoints so that a resume under another
+  /// config can say so (train_options_from_config sets it); "" = not recorded.
+  std::string config_hash;
 };
 
 struct ViewMetrics {
@@ -156,6 +159,9 @@ class Trainer {
   /// code_build_id() of the process that wrote the loaded checkpoint or prefix ("" for none, or
   /// one written before checkpoints recorded it).
   const std::string& state_build_id() const { return state_build_id_; }
+  /// TrainOptions::config_hash of the run that wrote the loaded checkpoint or prefix ("" for
+  /// none, or a checkpoint from before it was recorded).
+  const std::string& state_config_hash() const { return state_config_hash_; }
   void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
@@ -202,6 +208,7 @@ class Trainer {
   std::vector<PsnrPoint> psnr_trace_;
   std::string prefix_status_;
   std::string state_build_id_;
+  std::string state_config_hash_;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip

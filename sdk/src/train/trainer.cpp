@@ -18,6 +18,7 @@
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
+#include "crpgs/hashing.h"
 #include "crpgs/metrics.h"
 #include "crpgs/runtime.h"
 #include "crpgs/scene_generator.h"
@@ -233,6 +234,17 @@ std::string Trainer::checkpoint_path() const {
   return (std::filesystem::path(options_.output_dir) / "checkpoint.pt").string();
 }
 
+namespace {
+// Short texts (ids, hashes) in a torch archive, which stores tensors only.
+torch::Tensor text_tensor(const std::string& s) {
+  return torch::tensor(std::vector<int64_t>(s.begin(), s.end()), torch::kLong);
+}
+std::string tensor_text(const torch::Tensor& t) {
+  const auto c = t.to(torch::kLong).contiguous();
+  return std::string(c.data_ptr<int64_t>(), c.data_ptr<int64_t>() + c.numel());
+}
+}  // namespace
+
 StatusOr<std::string> Trainer::serialize_state() const {
   try {
     torch::serialize::OutputArchive ar;
@@ -242,9 +254,8 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
-    const std::string build = code_build_id();
-    ar.write("build_id",
-             torch::tensor(std::vector<int64_t>(build.begin(), build.end()), torch::kLong));
+    ar.write("build_id", text_tensor(code_build_id()));
+    ar.write("config_hash", text_tensor(options_.config_hash));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
       trace.insert(trace.end(), {p.seconds, double(p.iteration), p.psnr});
@@ -306,12 +317,9 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     ar.read("rng", rng);
     gen_.set_state(rng);
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace, build;
-    state_build_id_.clear();
-    if (ar.try_read("build_id", build))
-      for (int64_t c : std::vector<int64_t>(build.data_ptr<int64_t>(),
-                                            build.data_ptr<int64_t>() + build.numel()))
-        state_build_id_ += char(c);
+    torch::Tensor elapsed, trace, build, config;
+    state_build_id_ = ar.try_read("build_id", build) ? tensor_text(build) : "";
+    state_config_hash_ = ar.try_read("config_hash", config) ? tensor_text(config) : "";
     if (!rollback) elapsed_ = ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
     psnr_trace_.clear();
     if (ar.try_read("psnr_trace", trace) && trace.dim() == 2 && trace.size(1) == 3) {
@@ -686,6 +694,7 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
     o.checkpoint_interval = get(t, "checkpoint_interval", o.checkpoint_interval);
     o.checkpoint_minutes = get(t, "checkpoint_minutes", o.checkpoint_minutes);
     o.threads = get(t, "threads", o.threads);
+    o.config_hash = hex64(resolved.hash());
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("train config: ") + e.what());
   }
