@@ -313,6 +313,29 @@ TEST(Sweep, SkipsARunAnotherProcessHolds) {
   EXPECT_EQ(run_state(s.runs[2].dir), RunState::kComplete);
 }
 
+// Taken after the sweep's first look, while an earlier run trains: the sweep neither writes into
+// that directory nor starts it.
+TEST(Sweep, LeavesARunAloneThatAnotherProcessTookSinceTheStart) {
+  LocalSweep s("locked_later");
+  s.opt.workers = 1;
+  DirectoryLock lock;
+  s.opt.log = [&](const std::string& line) {
+    s.lines.push_back(line);
+    if (!lock.held() && line.find(s.runs[0].id + ": started") != std::string::npos)
+      lock = lock_directory(s.runs[2].dir).value();
+  };
+  auto sum = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(sum.ok());
+  ASSERT_TRUE(lock.held());
+  EXPECT_EQ(sum->succeeded, 5);
+  EXPECT_EQ(sum->skipped, 1);
+  EXPECT_FALSE(fs::exists(s.runs[2].dir + "/config.yaml"));  // not prepared, not started
+  EXPECT_EQ(run_state(s.runs[2].dir), RunState::kPending);
+  EXPECT_TRUE(std::any_of(s.lines.begin(), s.lines.end(), [&](const std::string& l) {
+    return l.find(s.runs[2].id + ": running in another process (pid ") != std::string::npos;
+  }));
+}
+
 TEST(Sweep, StopStartsNothingMoreAndStopsTheRunningRun) {
   LocalSweep s("stop");
   const SweepRun& hung = s.runs[1];

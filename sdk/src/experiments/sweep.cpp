@@ -298,8 +298,23 @@ struct Active {
   const SweepRun* run;
 };
 
-/// Prepares the directory and starts `runner train ...` with the logs appended.
-StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt) {
+/// Prepares the directory and starts `runner train ...` with the logs appended. Returns 0 with
+/// `*skipped` saying why when, since the sweep's first look, the run was finished or another
+/// process took it.
+StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string* skipped) {
+  // Held while the directory is prepared, so nothing here overwrites another process's run; the
+  // trainer takes it for itself once started (the lock is not inherited).
+  auto lock = lock_directory(run.dir);
+  if (!lock.ok()) {
+    const std::string holder = directory_lock_holder(run.dir);
+    if (holder.empty()) return lock.status();
+    *skipped = "running in another process (" + holder + "), skipped";
+    return 0;
+  }
+  if (run_state(run.dir) == RunState::kComplete) {
+    *skipped = "done, skipped";
+    return 0;
+  }
   std::error_code ec;
   const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
   CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
@@ -435,7 +450,13 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     }
     while (!stopping && !todo.empty() && active.size() < workers) {
       const SweepRun& r = *pick();
-      auto pid = launch(r, opt);
+      std::string skipped;
+      auto pid = launch(r, opt, &skipped);
+      if (pid.ok() && pid.value() == 0) {
+        ++sum.skipped;
+        log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": " + skipped);
+        continue;
+      }
       if (!pid.ok()) {
         ++sum.failed;
         sum.failed_ids.push_back(r.id);
