@@ -181,8 +181,11 @@ class Trainer {
   int64_t last_gaussian_count() const { return last_gaussians_; }
   const RateReport& last_rate() const { return last_rate_; }
 
- private:
+  /// The training view of `iteration`: deterministic from the seed (so a resume sees the same
+  /// views), and from how many replays after a roll-back had to draw differently.
   int view_for_iteration(int iteration) const;
+
+ private:
   StatusOr<std::string> serialize_state() const;
   static Status write_checkpoint(const std::string& path, std::string_view bytes);
   /// `rollback`: keep the training clock (the time was spent) but take the snapshot's trace.
@@ -196,6 +199,9 @@ class Trainer {
   std::shared_ptr<Rasterizer> rasterizer_;
   std::unique_ptr<AnchorModel> model_;
   torch::Generator gen_;
+  /// 0 normally; raised by a roll-back whose replay failed again (train()), so that the next
+  /// replay draws other views and noise. Checkpointed: a resume continues the same draws.
+  uint64_t replay_salt_ = 0;
   int iteration_ = 0;
   StepTimes times_;
   int64_t last_gaussians_ = 0;

@@ -110,7 +110,8 @@ int Trainer::view_for_iteration(int iteration) const {
   const int epoch = (iteration - 1) / n, pos = (iteration - 1) % n;
   std::vector<int> perm(static_cast<size_t>(n));
   std::iota(perm.begin(), perm.end(), 0);
-  std::mt19937_64 rng(options_.seed * 0x9E3779B97F4A7C15ull + uint64_t(epoch));
+  std::mt19937_64 rng(options_.seed * 0x9E3779B97F4A7C15ull + uint64_t(epoch) +
+                      replay_salt_ * 0xD1B54A32D192ED03ull);
   for (int i = n - 1; i > 0; --i) {  // Fisher-Yates with our own draw (portable)
     const int j = int(rng() % uint64_t(i + 1));
     std::swap(perm[size_t(i)], perm[size_t(j)]);
@@ -253,6 +254,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("iteration", torch::tensor(int64_t(iteration_), torch::kLong));
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
+    ar.write("replay_salt", torch::tensor(int64_t(replay_salt_), torch::kLong));
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
     ar.write("build_id", text_tensor(code_build_id()));
     ar.write("config_hash", text_tensor(options_.config_hash));
@@ -317,7 +319,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     ar.read("rng", rng);
     gen_.set_state(rng);
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace, build, config;
+    torch::Tensor elapsed, trace, build, config, salt;
+    replay_salt_ = ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     state_build_id_ = ar.try_read("build_id", build) ? tensor_text(build) : "";
     state_config_hash_ = ar.try_read("config_hash", config) ? tensor_text(config) : "";
     if (!rollback) elapsed_ = ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
@@ -466,9 +469,20 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     ++rollbacks;
     skipped_in_row = 0;
     CRPGS_RETURN_IF_ERROR(restore_state(last_good_, "the last good state", true));
+    // The first replay is exact (a one-off fault then costs nothing). A failure that came back
+    // is in the draws themselves: replay with other views, noise and subsets.
+    const bool perturb = rollbacks > 1;
+    if (perturb) {
+      replay_salt_ += 1;
+      gen_.set_current_seed(options_.seed * 0x9E3779B97F4A7C15ull +
+                            replay_salt_ * 0xD1B54A32D192ED03ull + uint64_t(iteration_));
+    }
     if (progress)
       progress->on_warning(
-          iteration_, what + "; rolled back to iteration " + std::to_string(last_good_iteration_));
+          iteration_, what + "; rolled back to iteration " + std::to_string(last_good_iteration_) +
+                          (perturb ? " (the failure came back: replaying with other views "
+                                     "and noise)"
+                                   : ""));
     return OkStatus();
   };
   while (true) {
