@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "cli_common.h"
+#include "crpgs/atomic_file.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/hashing.h"
@@ -65,6 +66,9 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
                  out_dir.c_str());
   // `scancel --signal=USR1` during set-up or the final encode must not end the run.
   std::signal(SIGUSR1, SIG_IGN);
+  if (lock->held())  // nobody else writes here: a killed attempt's half-written files can go
+    if (const int n = remove_stale_temp_files(out_dir); n > 0)
+      std::printf("removed %d half-written file(s) of an earlier, killed attempt\n", n);
   Status st = experiments::mark_run_started(out_dir);
   if (st.ok()) st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);

@@ -1,4 +1,5 @@
-// DirectoryLock: one writer per run directory, released on destruction and when the holder dies.
+// Run-directory hygiene: one writer per directory (DirectoryLock, released on destruction and when
+// the holder dies), and the temporary files a killed writer leaves.
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -6,6 +7,7 @@
 #include <filesystem>
 #include <string>
 
+#include "crpgs/atomic_file.h"
 #include "crpgs/dir_lock.h"
 
 namespace crpgs {
@@ -71,6 +73,23 @@ TEST(DirectoryLock, AHolderThatDiesLeavesNoStaleLock) {
   EXPECT_EQ(directory_lock_holder(dir), "");
   EXPECT_TRUE(lock_directory(dir).ok());
   for (int fd : {ready[0], ready[1], go[0], go[1]}) ::close(fd);
+}
+
+// What a killed write_file_atomic leaves behind goes; everything else stays.
+TEST(AtomicFile, StaleTempFilesAreRemovedAndNothingElse) {
+  const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/stale_tmp";
+  std::filesystem::remove_all(dir);
+  ASSERT_TRUE(write_file_atomic(dir + "/checkpoint.pt", "kept").ok());
+  for (const char* name : {"checkpoint.pt.tmp.123.0", "metrics.json.tmp.9.17"})
+    ASSERT_TRUE(write_file_atomic(dir + "/" + name, "half").ok());
+  for (const char* name : {"notes.tmp.txt", "a.tmp.1.x", ".tmp.1.2", "b.tmp.12"})
+    ASSERT_TRUE(write_file_atomic(dir + "/" + name, "kept").ok());
+  EXPECT_EQ(remove_stale_temp_files(dir), 2);
+  EXPECT_FALSE(std::filesystem::exists(dir + "/checkpoint.pt.tmp.123.0"));
+  EXPECT_FALSE(std::filesystem::exists(dir + "/metrics.json.tmp.9.17"));
+  for (const char* name : {"checkpoint.pt", "notes.tmp.txt", "a.tmp.1.x", ".tmp.1.2", "b.tmp.12"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/" + name)) << name;
+  EXPECT_EQ(remove_stale_temp_files(dir + "/missing"), 0);
 }
 
 }  // namespace

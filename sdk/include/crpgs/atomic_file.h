@@ -20,4 +20,9 @@ inline Status write_file_atomic(const std::string& path, const std::vector<uint8
 }
 StatusOr<std::vector<uint8_t>> read_file_bytes(const std::string& path);
 
+/// Removes the temporary files that write_file_atomic left in `dir` when its process was killed
+/// mid-write (a checkpoint's can be hundreds of MB). Only while nothing writes there, e.g. under
+/// the directory's lock. Returns how many were removed.
+int remove_stale_temp_files(const std::string& dir);
+
 }  // namespace crpgs

@@ -4,6 +4,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
@@ -58,6 +59,32 @@ Status write_file_atomic(const std::string& path, std::string_view bytes) {
     ::close(dfd);
   }
   return OkStatus();
+}
+
+namespace {
+// write_file_atomic's temporary name: TARGET.tmp.PID.COUNTER.
+bool is_temp_name(const std::string& name) {
+  const size_t at = name.rfind(".tmp.");
+  if (at == std::string::npos || at == 0) return false;
+  const std::string rest = name.substr(at + 5);
+  const size_t dot = rest.find('.');
+  auto digits = [](const std::string& s) {
+    return !s.empty() &&
+           std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
+  };
+  return dot != std::string::npos && digits(rest.substr(0, dot)) && digits(rest.substr(dot + 1));
+}
+}  // namespace
+
+int remove_stale_temp_files(const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  int removed = 0;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file(ec) && is_temp_name(it->path().filename().string()) &&
+        fs::remove(it->path(), ec))
+      ++removed;
+  return removed;
 }
 
 StatusOr<std::vector<uint8_t>> read_file_bytes(const std::string& path) {
