@@ -126,6 +126,19 @@ TEST(Codec, SingleAnchorAndAllMasked) {
   expect_same(f->model, dec->model);
 }
 
+// The encoder refuses what the decoder would refuse, rather than write a file nobody can read.
+TEST(Codec, RefusesBoundsTheDecoderWouldRefuse) {
+  auto f = make_fixture(50, 5);
+  if (!f.ok()) GTEST_SKIP() << f.status().message();
+  f->model.bounds = torch::tensor({{-2.5f, -2.5f, 0.f}, {2.5f, 2.5f, 0.f}});  // flat in z
+  auto enc = encode_model(f->model, f->config, f->components);
+  ASSERT_FALSE(enc.ok());
+  EXPECT_NE(enc.status().message().find("bounds are empty or non-finite"), std::string::npos)
+      << enc.status().message();
+  f->model.bounds = torch::tensor({{-2.5f, -2.5f, -0.7f}, {2.5f, NAN, 0.7f}});
+  EXPECT_FALSE(encode_model(f->model, f->config, f->components).ok());
+}
+
 TEST(Codec, RefusesNonCanonicalOrder) {
   auto f = make_fixture(50, 5);
   if (!f.ok()) GTEST_SKIP() << f.status().message();

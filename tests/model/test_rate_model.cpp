@@ -261,6 +261,26 @@ TEST(RateModel, FromDecodedRendersExactlyLikeTheQuantisedModel) {
   EXPECT_NE(missing.status().message().find("mlp_cov.b2"), std::string::npos);
 }
 
+// A scene flat on an axis through 0 still gets a non-empty interval there (the codec refuses an
+// empty one), and nothing non-finite comes out of normalising its positions.
+TEST(RateModel, AFlatSceneGetsBoundsACodecCanCarry) {
+  RateScene s;
+  AnchorInit in;
+  for (const auto& p : s.ds.points) in.points.push_back({p.x(), p.y(), 0.0f});
+  for (const auto& v : s.ds.train) in.train_cameras.push_back(v.camera);
+  AnchorModelOptions o;
+  o.voxel_size = 0.1;
+  auto m = AnchorModel::create(o, identity_feature_model(50), in,
+                               at::make_generator<at::CPUGeneratorImpl>(5));
+  ASSERT_TRUE(m.ok()) << m.status().message();
+  ASSERT_TRUE(torch::equal((*m)->anchors().select(1, 2), torch::zeros({(*m)->num_anchors()})));
+  const auto b = (*m)->bounds();
+  EXPECT_TRUE((b[1] > b[0]).all().item<bool>()) << b;
+  EXPECT_EQ(b[0][2].item<float>(), -1.0f);
+  EXPECT_EQ(b[1][2].item<float>(), 1.0f);
+  EXPECT_TRUE(torch::isfinite((*m)->positions01()).all().item<bool>());
+}
+
 TEST(RateModel, AttachRejectsAContextOfTheWrongWidth) {
   SKIP_WITHOUT_PLUGINS();
   RateScene s;

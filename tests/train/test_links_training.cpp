@@ -221,6 +221,34 @@ TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
   EXPECT_FALSE((m.links() == root0).any().item<bool>());
 }
 
+// A root whose adaptive step saturates (tanh = -1 in float: q = 0) is coded as 0 (quantize); the
+// leaf model sees the same 0, not 0/0.
+TEST(LinksTraining, ARootWithASaturatedStepGivesFiniteLeafMeans) {
+  SKIP_WITHOUT_PLUGINS();
+  Dataset ds = test::tiny_scene();
+  auto t = links_trainer(ds, std::make_shared<PairLinks>());
+  AnchorModel& m = t->model();
+  ASSERT_TRUE(m.rebuild_links(0).ok());
+  const auto leaves = (m.links() >= 0).nonzero().view(-1);
+  ASSERT_GE(leaves.size(0), 1);
+  {
+    torch::NoGradGuard ng;
+    m.features().normal_();  // roots with non-zero features: x / 0 would be infinite
+    // The context's output layer (hash_grid: table, l1 w/b, l2 w/b): its last three outputs are
+    // the step pre-activations; drive them to -1e4 for every anchor.
+    auto params = m.context()->parameters();
+    ASSERT_EQ(params.size(), 5u);
+    const int64_t width = params[4].size(0);
+    params[3].narrow(0, width - 3, 3).zero_();
+    params[4].narrow(0, width - 3, 3).fill_(-1e4f);
+    const auto mu = m.feature_means(leaves, torch::zeros({leaves.size(0), 50}));
+    EXPECT_TRUE(torch::isfinite(mu).all().item<bool>());
+  }
+  QuantizedAttributes q;
+  ASSERT_TRUE(coded_model_from(m, &q).ok());
+  EXPECT_EQ(q.features.abs().max().item<float>(), 0.f);  // every feature coded as 0
+}
+
 TEST(LinksTraining, ChainsAndBadShapesAreRefused) {
   SKIP_WITHOUT_PLUGINS();
   Dataset ds = test::tiny_scene();

@@ -292,6 +292,16 @@ const char* section_category(const std::string& id) {
   return "other";
 }
 
+namespace {
+// What HEAD's bounds must be for the decoder to accept them (checked on both sides, so that no
+// file is written that cannot be read back).
+bool bounds_decodable(const float lo_hi[6]) {
+  for (int a = 0; a < 3; ++a)
+    if (!(lo_hi[3 + a] > lo_hi[a]) || !std::isfinite(lo_hi[3 + a] - lo_hi[a])) return false;
+  return true;
+}
+}  // namespace
+
 StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& config,
                                     const CodecComponents& c) {
   CodedModel m = model;                  // shares the tensors
@@ -349,7 +359,12 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
   head.put_varint(uint64_t(m.chunk));
   head.put_f64(m.voxel_size);
   const auto b = m.bounds.to(torch::kFloat).contiguous();
-  for (int i = 0; i < 6; ++i) head.put_f32(b.view(-1)[i].item<float>());
+  if (b.numel() != 6) return bad("bounds must be [2, 3]");
+  float lo_hi[6];
+  for (int i = 0; i < 6; ++i) lo_hi[i] = b.view(-1)[i].item<float>();
+  if (!bounds_decodable(lo_hi))
+    return bad("the anchor bounds are empty or non-finite on an axis (recompute_bounds)");
+  for (float v : lo_hi) head.put_f32(v);
   head.put_f64(m.q0.feature);
   head.put_f64(m.q0.scaling);
   head.put_f64(m.q0.offset);
@@ -501,9 +516,7 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
     return corrupt("HEAD: feature width/offsets disagree with the stored config");
   if (chunk == 0 || chunk > kMaxChunk) return corrupt("HEAD: chunk size " + std::to_string(chunk));
   if (!(m.voxel_size > 0) || !std::isfinite(m.voxel_size)) return corrupt("HEAD: bad voxel size");
-  for (int a = 0; a < 3; ++a)
-    if (!(bounds[3 + a] > bounds[a]) || !std::isfinite(bounds[3 + a] - bounds[a]))
-      return corrupt("HEAD: empty or non-finite bounds");
+  if (!bounds_decodable(bounds)) return corrupt("HEAD: empty or non-finite bounds");
   for (double q : {m.q0.feature, m.q0.scaling, m.q0.offset})
     if (!(q > 0) || !std::isfinite(q)) return corrupt("HEAD: bad quantisation step Q0");
   m.chunk = int64_t(chunk);

@@ -58,7 +58,10 @@ torch::Tensor hac_bounds(const torch::Tensor& anchor) {  // [N, 3] -> [2, 3]
   auto mn = std::get<0>(anchor.min(0)), mx = std::get<0>(anchor.max(0));
   mn = torch::where(mn < 0, mn * 1.2, mn * 0.8);
   mx = torch::where(mx > 0, mx * 1.2, mx * 0.8);
-  return torch::stack({mn, mx});
+  // A scene flat on an axis through 0 (all anchors at 0 there) would get lo = hi = 0: an empty
+  // interval that no bitstream may carry. One unit either side (HAC's bounds are in world units).
+  const auto flat = mx <= mn;
+  return torch::stack({torch::where(flat, mn - 1, mn), torch::where(flat, mx + 1, mx)});
 }
 
 torch::Tensor normalise(const torch::Tensor& pos, const torch::Tensor& bounds) {
@@ -233,7 +236,11 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
     q_root = split_entropy_params(context->forward(root_pos01), layout, rate.q0).q_f;
   }
   auto f_root = p(i_feat).index_select(0, roots);
-  auto f_hat = f_root + (torch::round(f_root / q_root) * q_root - f_root).detach();
+  // A saturated step (q = 0: tanh = -1 in float) codes the root's feature as 0 (quantize()); the
+  // same here, instead of 0/0.
+  auto decoded =
+      torch::where(q_root > 0, torch::round(f_root / q_root) * q_root, torch::zeros_like(f_root));
+  auto f_hat = f_root + (decoded - f_root).detach();
   const LeafMlp mlp{p(i_leaf), p(i_leaf + 1), p(i_leaf + 2), p(i_leaf + 3), link_opt.residual};
   auto mu_leaf =
       leaf_feature_mean(mlp, f_hat, root_pos01, leaf_pos01, base_mu.index_select(0, leaf_rows));
