@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 
 #include "cli_common.h"
 #include "crpgs/dir_lock.h"
@@ -48,6 +49,18 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
   std::vector<std::vector<std::string>> rows{{"run", "state", "progress", "result"}};
   int done = 0, running = 0, stopped = 0, waiting = 0;
   char buf[160];
+  // Shared prefixes: each run's key, and how many runs share each.
+  const std::string prefix_dir = ex::sweep_prefix_dir(runs_dir);
+  std::vector<std::string> keys(runs.size());
+  std::map<std::string, int> sharing;
+  if (spec.share_prefix)
+    for (size_t i = 0; i < runs.size(); ++i)
+      if (auto cfg = ex::build_run_config(runs[i], &registry); cfg.ok())
+        if (keys[i] = shared_prefix_key(cfg.value()); !keys[i].empty()) ++sharing[keys[i]];
+  auto published = [&](const std::string& key) {
+    std::error_code ec;
+    return !key.empty() && fs::exists(shared_prefix_path(prefix_dir, key), ec);
+  };
   for (const auto& r : runs) {
     std::vector<std::string> row{
         "[" + std::to_string(r.index + 1) + "/" + std::to_string(runs.size()) + "] " + r.id, "", "",
@@ -81,19 +94,21 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
     } else {
       ++waiting;
       row[1] = "waiting";
-      if (spec.share_prefix)
-        if (auto cfg = ex::build_run_config(r, &registry); cfg.ok()) {
-          const std::string key = shared_prefix_key(cfg.value());
-          if (!key.empty() &&
-              fs::exists(shared_prefix_path(ex::sweep_prefix_dir(runs_dir), key), ec))
-            row[1] += " (will start from its shared prefix)";
-        }
+      if (published(keys[size_t(&r - runs.data())]))
+        row[1] += " (will start from its shared prefix)";
     }
     rows.push_back(std::move(row));
   }
   std::printf("sweep %s: %zu runs in %s: %d done, %d running, %d stopped, %d waiting\n",
               spec.name.c_str(), runs.size(), runs_dir.c_str(), done, running, stopped, waiting);
   print_table(rows);
+  for (const auto& [key, n] : sharing) {
+    if (n < 2) continue;  // nothing to share
+    std::printf("shared prefix %s (%d runs): %s\n", key.c_str(), n,
+                published(key) ? ("published, " + shared_prefix_path(prefix_dir, key)).c_str()
+                               : "not yet published (the first of them to reach rate_start "
+                                 "writes it)");
+  }
   return 0;
 }
 

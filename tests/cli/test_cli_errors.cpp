@@ -1,23 +1,13 @@
 // The CLI's answer to a misspelt command or option: what does not exist, and the nearest that does.
 #include <gtest/gtest.h>
 
-#include <cstdio>
 #include <string>
+
+#include "cli_output.h"
 
 namespace {
 
-#ifdef CRPGS_CLI_PATH
-/// `crpgs ARGS` with stderr and stdout together; *rc is its exit status.
-std::string crpgs_output(const std::string& args, int* rc) {
-  std::string out;
-  FILE* p = popen(("'" CRPGS_CLI_PATH "' " + args + " 2>&1").c_str(), "r");
-  if (!p) return out;
-  char buf[512];
-  while (std::fgets(buf, sizeof buf, p)) out += buf;
-  *rc = pclose(p);
-  return out;
-}
-#endif
+using crpgs::test::crpgs_output;
 
 TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
 #ifndef CRPGS_CLI_PATH

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <thread>
 
+#include "cli_output.h"
 #include "crpgs/config.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
@@ -461,6 +462,36 @@ TEST(Sweep, NextRunStartsAPrefixEarlyThenUsesThem) {
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", false}}, {"C"}, is_published), 0u);
 }
 
+// `crpgs sweep --status` names each shared prefix, how many runs share it and whether it is
+// published yet; waiting runs say they will start from it.
+TEST(Sweep, StatusShowsTheSharedPrefixes) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "the crpgs executable is not built";
+#else
+  if (!fs::exists(std::string(CRPGS_PLUGIN_BUILD_DIR) + "/libcrpgs_context_hash_grid.so"))
+    GTEST_SKIP() << "the hash_grid plugin is not built (a rate path is what shares a prefix)";
+  const std::string dir = fresh_dir("status_prefix");
+  write_text(dir + "/h.yaml", "context: {type: hash_grid}\nentropy: {type: gaussian}\n");
+  write_text(dir + "/sweep.yaml", "output: " + dir + "/runs\nconfigs: [" + dir +
+                                      "/h.yaml]\noverrides: {rate.lambda: [1.0e-3, 4.0e-3]}\n");
+  auto status = [&] {
+    return crpgs::test::crpgs_output("sweep '" + dir + "/sweep.yaml' --status");
+  };
+  std::string out = status();
+  const size_t at = out.find("shared prefix ");
+  ASSERT_NE(at, std::string::npos) << out;
+  const std::string key = out.substr(at + 14, 16);
+  EXPECT_NE(out.find("shared prefix " + key + " (2 runs): not yet published"), std::string::npos)
+      << out;
+  EXPECT_EQ(out.find("will start from its shared prefix"), std::string::npos) << out;
+  fs::create_directories(dir + "/runs/prefixes");
+  write_text(dir + "/runs/prefixes/" + key + ".pt", "x");
+  out = status();
+  EXPECT_NE(out.find("shared prefix " + key + " (2 runs): published"), std::string::npos) << out;
+  EXPECT_NE(out.find("waiting (will start from its shared prefix)"), std::string::npos) << out;
+#endif
+}
+
 // `crpgs sweep --status`: one run of each state, with the progress read back from its log.
 TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
 #ifndef CRPGS_CLI_PATH
@@ -491,17 +522,9 @@ TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
              "\r\033[Ktrain [#...] 0% 139/40000 5.3/s 26.0s ETA 2h05m a\r\033[Ktrain [#...] 0% "
              "140/40000 5.4/s 26.1s ETA 2h03m b\ninterrupted\n");
   // 3: waiting.
-  std::string out;
-  {
-    FILE* p =
-        popen(("'" + std::string(CRPGS_CLI_PATH) + "' sweep '" + dir + "/sweep.yaml' --status 2>&1")
-                  .c_str(),
-              "r");
-    ASSERT_NE(p, nullptr);
-    char buf[512];
-    while (std::fgets(buf, sizeof buf, p)) out += buf;
-    ASSERT_EQ(pclose(p), 0) << out;
-  }
+  int rc = -1;
+  const std::string out = crpgs::test::crpgs_output("sweep '" + dir + "/sweep.yaml' --status", &rc);
+  ASSERT_EQ(rc, 0) << out;
   EXPECT_NE(out.find("4 runs in " + dir + "/runs: 1 done, 1 running, 1 stopped, 1 waiting"),
             std::string::npos)
       << out;
