@@ -205,6 +205,49 @@ TEST(RasterStability, NearSingularAndDegenerate2DCovariances) {
   expect_matches_reference(s, cam, settings_with(true), "degenerate covariances");
 }
 
+TEST(RasterStability, HugeNeedlesAcrossTheImageKeepAnAccurateConic) {
+  // Needles in the image plane, diagonal to the pixel axes, σ from 1e5 to 1e9 px: the 2D
+  // covariance is 0.3·I + σ²·w·wᵀ, so its inverse's largest eigenvalue is 1/0.3 whatever σ
+  // (and never more for any Gaussian). c00·c11 − c01² loses that to cancellation from σ² ≈ 1e14.
+  const Camera cam = make_camera(40, 32);
+  Scene s = random_scene(16, 53, cam);
+  const double c8 = std::cos(M_PI / 8), s8 = std::sin(M_PI / 8);
+  const double lengths[] = {1e4, 1e5, 1e6, 1e7, 1e8};
+  for (int i = 0; i < 5; ++i) {
+    const Eigen::Vector3d w = world_at_pixel(cam, 12 + 4 * i, 10 + 3 * i, 3.0);
+    set_row(s.means, i, {w.x(), w.y(), w.z()});
+    set_row(s.rotations, i, {c8, 0, 0, i % 2 ? s8 : -s8});  // x axis to ±45° in the image
+    set_row(s.scales, i, {lengths[i], 1e-9, 1e-9});
+    s.opacities[i] = 0.05f;
+  }
+  const ProjectResult pr =
+      project_forward(s.means, s.scales, s.rotations, cam, settings_with(false), 2);
+  auto con = pr.conics.accessor<float, 2>();
+  auto rad = pr.radii.accessor<int32_t, 1>();
+  const double bound = 1.0 / 0.3;
+  for (int64_t i = 0; i < s.size(); ++i) {
+    ASSERT_GT(rad[i], 0) << "gaussian " << i;
+    const double a = con[i][0], b = con[i][1], c = con[i][2];
+    const double lmax = 0.5 * (a + c) + std::hypot(0.5 * (a - c), b);
+    EXPECT_GT(a, 0.0) << "gaussian " << i;
+    EXPECT_GT(c, 0.0) << "gaussian " << i;
+    if (i < 5) {
+      EXPECT_NEAR(lmax / bound, 1.0, 1e-5) << "needle " << i << " of length " << lengths[i];
+    } else {
+      EXPECT_LE(lmax, bound * (1 + 1e-5)) << "gaussian " << i;
+    }
+  }
+  // The render matches the reference for every length. Gradients through the conic cancel
+  // terms of size σ² in double, on both sides, so they are compared up to σ ≈ 1e6 px.
+  const Weights wt = random_weights(cam.width, cam.height, 5);
+  const RenderRun fast = run(s, cam, settings_with(false), wt, false);
+  const RenderRun ref = run(s, cam, settings_with(false), wt, true);
+  expect_finite(fast, "huge needles");
+  expect_forward_close(fast, ref, "huge needles");
+  for (int i = 2; i < 5; ++i) s.scales[i][0] = lengths[1];
+  expect_matches_reference(s, cam, settings_with(false), "long needles");
+}
+
 TEST(RasterStability, UnnormalisedAndZeroQuaternions) {
   const Camera cam = make_camera(40, 32);
   Scene s = random_scene(16, 61, cam, 4.0);

@@ -112,15 +112,22 @@ CRPGS_INLINE void project_state(const ProjectCamera& c, const Inputs& in, State&
     st.T[0][k] = j00 * c.R[0][k] + j02 * c.R[2][k];
     st.T[1][k] = j11 * c.R[1][k] + j12 * c.R[2][k];
   }
-  vd U[2][3];  // T Sigma
+  // T Sigma T^T = B B^T with B = T M, rows u and v.
+  vd B[2][3];
   for (int r = 0; r < 2; ++r)
     for (int k = 0; k < 3; ++k)
-      U[r][k] = (st.T[r][0] * st.S[0][k] + st.T[r][1] * st.S[1][k]) + st.T[r][2] * st.S[2][k];
-  const auto& T = st.T;
-  st.c00 = ((U[0][0] * T[0][0] + U[0][1] * T[0][1]) + U[0][2] * T[0][2]) + kCovDilation;
-  st.c01 = (U[0][0] * T[1][0] + U[0][1] * T[1][1]) + U[0][2] * T[1][2];
-  st.c11 = ((U[1][0] * T[1][0] + U[1][1] * T[1][1]) + U[1][2] * T[1][2]) + kCovDilation;
-  st.det = st.c00 * st.c11 - st.c01 * st.c01;
+      B[r][k] = (st.T[r][0] * st.M[0][k] + st.T[r][1] * st.M[1][k]) + st.T[r][2] * st.M[2][k];
+  const vd uu = (B[0][0] * B[0][0] + B[0][1] * B[0][1]) + B[0][2] * B[0][2];
+  const vd vv = (B[1][0] * B[1][0] + B[1][1] * B[1][1]) + B[1][2] * B[1][2];
+  st.c00 = uu + kCovDilation;
+  st.c01 = (B[0][0] * B[1][0] + B[0][1] * B[1][1]) + B[0][2] * B[1][2];
+  st.c11 = vv + kCovDilation;
+  // det = |u x v|^2 + d(|u|^2 + |v|^2) + d^2 (Lagrange's identity): non-negative terms, so it
+  // stays positive and accurate for needles where c00·c11 − c01² cancels (σ² ≳ 1e14 px²).
+  const vd w0 = B[0][1] * B[1][2] - B[0][2] * B[1][1];
+  const vd w1 = B[0][2] * B[1][0] - B[0][0] * B[1][2];
+  const vd w2 = B[0][0] * B[1][1] - B[0][1] * B[1][0];
+  st.det = ((w0 * w0 + w1 * w1) + w2 * w2) + kCovDilation * (uu + vv) + kCovDilation * kCovDilation;
 }
 
 // In the depth range with a positive-definite 2D covariance: the Gaussian projects.

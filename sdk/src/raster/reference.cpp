@@ -56,7 +56,6 @@ Projection project(const at::Tensor& means, const at::Tensor& scales, const at::
                 1)
           .view({-1, 3, 3});
   const at::Tensor M = Rq * s.unsqueeze(1);  // M[:, r, k] = Rq[:, r, k] * s[:, k]
-  const at::Tensor Sigma = at::matmul(M, M.transpose(1, 2));
 
   const double tan_x = 0.5 * camera.width / camera.fx, tan_y = 0.5 * camera.height / camera.fy;
   const double lxp = (camera.width - camera.cx) / camera.fx + 0.3 * tan_x;
@@ -71,11 +70,16 @@ Projection project(const at::Tensor& means, const at::Tensor& scales, const at::
                                  1)
                            .view({-1, 2, 3});
   const at::Tensor T = at::matmul(J, R);
-  const at::Tensor cov = at::matmul(at::matmul(T, Sigma), T.transpose(1, 2));
-  const at::Tensor c00 = cov.select(1, 0).select(1, 0) + kCovDilation;
-  const at::Tensor c01 = cov.select(1, 0).select(1, 1);
-  const at::Tensor c11 = cov.select(1, 1).select(1, 1) + kCovDilation;
-  const at::Tensor det = c00 * c11 - c01 * c01;
+  // T Sigma T^T = B B^T with B = T M, rows u and v (as the kernel).
+  const at::Tensor B = at::matmul(T, M);
+  const at::Tensor u = B.select(1, 0), v = B.select(1, 1);
+  const at::Tensor uu = u.square().sum(1), vv = v.square().sum(1);
+  const at::Tensor c00 = uu + kCovDilation;
+  const at::Tensor c01 = (u * v).sum(1);
+  const at::Tensor c11 = vv + kCovDilation;
+  // Lagrange's identity: c00·c11 − c01² would cancel for huge needles.
+  const at::Tensor det =
+      at::cross(u, v, 1).square().sum(1) + kCovDilation * (uu + vv) + kCovDilation * kCovDilation;
   const at::Tensor conic = at::stack({c11 / det, -c01 / det, c00 / det}, 1);
   const at::Tensor m2 =
       at::stack({camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy}, 1);

@@ -137,6 +137,11 @@ CRPGS_INLINE void strip_rows(const Packed& g, const TileGeom& tg, double xb, boo
                              int y1, int8_t& ya, int8_t& yb) {
   const double a = g.a, b = g.b, c = g.c, q = double(g.q) * (1 + 2e-3);
   const double det = a * c - b * b;
+  if (!(det > 0)) {  // no ellipse (alpha_extent): every row of the box
+    ya = int8_t(y0);
+    yb = int8_t(y1);
+    return;
+  }
   const double ey = std::sqrt(q * a / det);
   const double x_top = g.mx + b * ey / a, x_bot = g.mx - b * ey / a;  // at y = my -/+ ey
   const double dx = g.mx - xb;
@@ -490,8 +495,12 @@ double alpha_extent(const float* con, float op, float& ex, float& ey) {
   // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
   const double Q = 2.0 * std::log(255.0 * double(op));
   const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
-  if (!(Q > 0) || !(det > 0)) {
+  if (!(Q > 0)) {
     ex = ey = -1.f;
+  } else if (!(det > 0)) {
+    // A needle too long for float conics (σ ≳ 3000 px): a c − b² of the stored floats is exact
+    // here and not positive, so the loop's test bounds no ellipse; the radius box does.
+    ex = ey = kUnboundedExtent;
   } else {
     ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
     ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);

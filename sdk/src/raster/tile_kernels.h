@@ -19,9 +19,14 @@ struct alignas(64) Packed {
 /// m2 [2], con [3] (conic a, b, c), col [3].
 Packed pack_one(const float* m2, const float* con, float op, const float* col, float depth);
 
+/// Half-extent of a conic whose float a c − b² is not positive: unbounded, the radius box limits
+/// it.
+inline constexpr float kUnboundedExtent = 1e30f;
+
 /// The half-extents ex, ey of Packed for a conic and opacity (ex < 0: alpha never reaches
-/// 1/255). A pixel x takes part only if |x + 0.5 - mx| <= ex, and likewise in y. Returns
-/// Q = 2 ln(255 op), the bound on the conic's quadratic form (Packed::q).
+/// 1/255; kUnboundedExtent: no bound but the radius box). A pixel x takes part only if
+/// |x + 0.5 - mx| <= ex, and likewise in y. Returns Q = 2 ln(255 op), the bound on the conic's
+/// quadratic form (Packed::q).
 double alpha_extent(const float* con, float op, float& ex, float& ey);
 
 /// Read-only inputs shared by every tile.
