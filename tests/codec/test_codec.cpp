@@ -186,7 +186,7 @@ coding::Bytes relabelled_with_bad_scal(const coding::Bytes& file, uint16_t minor
   return w.finish();
 }
 
-// Format 1.1 computes the entropy parameters portably; a 1.0 file is decoded with the old
+// Formats from 1.1 compute the entropy parameters portably; a 1.0 file is decoded with the old
 // (BLAS) arithmetic, and a stream that fails to decode says why that may be.
 TEST(Codec, FormatOneZeroStreamErrorsNameTheKernelDependence) {
   auto f = make_fixture(300, 12);
@@ -194,13 +194,46 @@ TEST(Codec, FormatOneZeroStreamErrorsNameTheKernelDependence) {
   auto enc = encode_model(f->model, f->config, f->components);
   ASSERT_TRUE(enc.ok()) << enc.status().to_string();
   const std::string hint = "format 1.0 file decodes only where the BLAS kernels";
-  auto v11 = decode_model(relabelled_with_bad_scal(enc->bytes, 1), registry());
-  ASSERT_FALSE(v11.ok());
-  EXPECT_NE(v11.status().message().find("SCAL"), std::string::npos) << v11.status().message();
-  EXPECT_EQ(v11.status().message().find(hint), std::string::npos) << v11.status().message();
+  auto v12 = decode_model(relabelled_with_bad_scal(enc->bytes, 2), registry());
+  ASSERT_FALSE(v12.ok());
+  EXPECT_NE(v12.status().message().find("SCAL"), std::string::npos) << v12.status().message();
+  EXPECT_EQ(v12.status().message().find(hint), std::string::npos) << v12.status().message();
   auto v10 = decode_model(relabelled_with_bad_scal(enc->bytes, 0), registry());
   ASSERT_FALSE(v10.ok());
   EXPECT_NE(v10.status().message().find(hint), std::string::npos) << v10.status().message();
+}
+
+// Each minor version keeps the arithmetic it was written with; the encoder writes the newest
+// (1.2: steps by 2·sigmoid(2a), which neither cancels nor loses its gradient where a << 0).
+TEST(Codec, EachFormatMinorDecodesWithItsOwnStepsAndArithmetic) {
+  const std::pair<Arithmetic, StepForm> by_minor[] = {
+      {Arithmetic::kFast, StepForm::kOnePlusTanh},
+      {Arithmetic::kPortable, StepForm::kOnePlusTanh},
+      {Arithmetic::kPortable, StepForm::kTwoSigmoid},
+      {Arithmetic::kPortable, StepForm::kTwoSigmoid}};  // a later minor reads as the newest
+  for (uint16_t minor = 0; minor < 4; ++minor) {
+    CodedModel m;
+    set_format_math(minor, &m);
+    EXPECT_EQ(m.arithmetic, by_minor[minor].first) << minor;
+    EXPECT_EQ(m.steps, by_minor[minor].second) << minor;
+  }
+  auto f = make_fixture(300, 13);
+  if (!f.ok()) GTEST_SKIP() << f.status().message();
+  f->model.steps = StepForm::kOnePlusTanh;  // the encoder writes 1.2 whatever it is given
+  auto enc = encode_model(f->model, f->config, f->components);
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  auto ct = coding::ContainerReader::parse(enc->bytes);
+  ASSERT_TRUE(ct.ok());
+  for (const auto& sec : ct->sections) {
+    if (sec.component_id == "org.crpgs.codec.anchor_model") {
+      EXPECT_EQ(sec.component_minor, 2) << sec.id;
+    }
+  }
+  auto dec = decode_model(enc->bytes, registry());
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_EQ(dec->model.steps, StepForm::kTwoSigmoid);
+  f->model.steps = StepForm::kTwoSigmoid;
+  expect_same(f->model, dec->model);
 }
 
 }  // namespace

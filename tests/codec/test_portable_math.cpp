@@ -1,12 +1,14 @@
 /// @file test_portable_math.cpp
-/// @brief The codec's portable arithmetic: exp and tanh against libm, the linear layer against
-/// its fixed-order definition bit for bit and independent of the thread count.
+/// @brief The codec's portable arithmetic: exp, tanh and 1 + tanh against libm, the linear layer
+/// against its fixed-order definition bit for bit and independent of the thread count; the
+/// adaptive steps' two forms.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
 #include <cmath>
 #include <limits>
 
+#include "crpgs/entropy_params.h"
 #include "crpgs/portable_math.h"
 #include "crpgs/runtime.h"
 
@@ -41,6 +43,54 @@ TEST(PortableMath, TanhMatchesLibmAndKeepsSpecialValues) {
   EXPECT_EQ(y[6001].item<float>(), 0.f);
   EXPECT_EQ(y[6005].item<float>(), 1.f);
   EXPECT_EQ(y[6006].item<float>(), -1.f);
+}
+
+TEST(PortableMath, OnePlusTanhIsAccurateWhereTheSumCancels) {
+  const float inf = std::numeric_limits<float>::infinity();
+  auto x = torch::linspace(-40, 40, 8001);
+  x = torch::cat({x, torch::tensor({inf, -inf, std::nanf("")})});
+  const auto y = portable_one_plus_tanh(x);
+  const float* xp = x.data_ptr<float>();
+  const float* yp = y.data_ptr<float>();
+  for (int64_t i = 0; i < 8001; ++i) {
+    // 1 + tanh(x) = 2 / (1 + e^(−2x)), in long double: no cancellation for x << 0.
+    const float want = float(2.0L / (1.0L + std::exp(-2.0L * xp[i])));
+    ASSERT_GT(yp[i], 0.f) << xp[i];
+    EXPECT_LE(std::abs(yp[i] - want), want * 1.2e-7f) << xp[i];
+  }
+  EXPECT_EQ(y[8001].item<float>(), 2.f);
+  EXPECT_EQ(y[8002].item<float>(), 0.f);
+  EXPECT_TRUE(std::isnan(y[8003].item<float>()));
+  // Where 1 + tanh in float has already cancelled to 0 (format 1.1's steps).
+  const auto a = torch::tensor({-9.5f});
+  EXPECT_EQ((portable_tanh(a) + 1).item<float>(), 0.f);
+  EXPECT_NEAR(portable_one_plus_tanh(a).item<float>(), 2 * std::exp(-19.0), 1e-15);
+}
+
+TEST(QuantSteps, TwoSigmoidStepsStayPositiveWithAGradientOnBothArithmetics) {
+  const QuantSteps q0{1.0, 0.001, 0.2};
+  auto a = torch::linspace(-40, 40, 801).unsqueeze(1).repeat({1, 3}).requires_grad_(true);
+  EntropyParams fast, portable;
+  set_quant_steps(a, q0, &fast, Arithmetic::kFast, StepForm::kTwoSigmoid);
+  set_quant_steps(a, q0, &portable, Arithmetic::kPortable, StepForm::kTwoSigmoid);
+  for (const auto& [f, p] : {std::pair{fast.q_f, portable.q_f}, std::pair{fast.q_s, portable.q_s},
+                             std::pair{fast.q_o, portable.q_o}}) {
+    EXPECT_TRUE(p.gt(0).all().item<bool>());
+    // Training's steps (ATen's sigmoid) and the codec's agree to a few ulp.
+    EXPECT_LE(((f.detach() - p) / p).abs().max().item<double>(), 6e-7);
+  }
+  // The rate can pull a saturated step back: d q / d a > 0 down to a = −40 (above a ≈ 9 it is
+  // below float's resolution, as it always was: q is 2·Q0 there).
+  fast.q_f.sum().backward();
+  const auto g = a.grad().select(1, 0).slice(0, 0, 401);  // a in [−40, 0]
+  EXPECT_TRUE(g.gt(0).all().item<bool>()) << g.min().item<float>();
+  // Format 1.1's form: q = 0 and no gradient from a ≈ −9 on.
+  auto b = torch::tensor({{-9.5f, -9.5f, -9.5f}}).requires_grad_(true);
+  EntropyParams old;
+  set_quant_steps(b, q0, &old, Arithmetic::kFast, StepForm::kOnePlusTanh);
+  old.q_f.sum().backward();
+  EXPECT_EQ(old.q_f.item<float>(), 0.f);
+  EXPECT_EQ(b.grad()[0][0].item<float>(), 0.f);
 }
 
 // Output (n, o) = b[o] + x[n,0] w[o,0] + x[n,1] w[o,1] + ..., each step rounded to float.

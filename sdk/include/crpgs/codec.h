@@ -69,11 +69,18 @@ struct CodedModel {
   std::string geometry = "draco";  ///< "draco" or "raw"
   std::string link_coding = "compact";  ///< "compact" or "paper" (the LINK section's coding)
   bool leaf_residual = false;  ///< the leaf MLP's form (from the config `rate.leaf_residual`)
-  /// How the entropy parameters are computed: kPortable in files of format 1.1 and later (the
-  /// encoder always writes 1.1); kFast for 1.0 files, which decode only where the same BLAS
-  /// kernels run as when they were encoded.
+  /// How the entropy parameters are computed (set_format_math): kPortable in files of format 1.1
+  /// and later; kFast for 1.0 files, which decode only where the same BLAS kernels run as when
+  /// they were encoded.
   Arithmetic arithmetic = Arithmetic::kPortable;
+  /// How the adaptive steps are computed: kTwoSigmoid from format 1.2, kOnePlusTanh before.
+  StepForm steps = StepForm::kTwoSigmoid;
 };
+
+/// Sets m's arithmetic and steps to what a file whose codec sections have minor version `minor`
+/// computes (0: kFast, kOnePlusTanh; 1: kPortable, kOnePlusTanh; 2 and later: kPortable,
+/// kTwoSigmoid). The encoder writes the newest minor.
+void set_format_math(uint16_t minor, CodedModel* m);
 
 /// Roots, free anchors and leaves of a link vector [N] (counts).
 struct LinkCounts {

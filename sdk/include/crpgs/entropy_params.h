@@ -25,7 +25,7 @@ struct EntropyParams {
   torch::Tensor mu_f, sigma_f;  ///< [N, Dc]
   torch::Tensor mu_s, sigma_s;  ///< [N, 6]
   torch::Tensor mu_o, sigma_o;  ///< [N, K*3]
-  torch::Tensor q_f, q_s, q_o;  ///< [N, 1] adaptive steps Q0·(1 + tanh a), in (0, 2·Q0)
+  torch::Tensor q_f, q_s, q_o;  ///< [N, 1] adaptive steps Q0·(1 + tanh a), in [0, 2·Q0)
 };
 
 /// How entropy parameters are computed. kFast: BLAS and ATen, differentiable (training), last
@@ -34,22 +34,31 @@ struct EntropyParams {
 /// kernels run).
 enum class Arithmetic { kFast, kPortable };
 
+/// How the steps' factor 1 + tanh(a) is evaluated. kOnePlusTanh: tanh, then + 1 in float
+/// (format ≤ 1.1); it cancels to 0 for a ≲ −9, where its gradient is 0 too, so a saturated step
+/// could never recover. kTwoSigmoid: 2 / (1 + e^(−2a)), the same function without the
+/// cancellation (positive, with a gradient, down to a ≈ −44): format 1.2 and training.
+enum class StepForm { kOnePlusTanh, kTwoSigmoid };
+
 /// Splits a context output row ([N, layout.width()]) into EntropyParams. σ outputs are returned
 /// raw (the entropy model clamps them).
 EntropyParams split_entropy_params(const torch::Tensor& context_out,
                                    const EntropyParamLayout& layout, const QuantSteps& q0,
-                                   Arithmetic arithmetic = Arithmetic::kFast);
+                                   Arithmetic arithmetic = Arithmetic::kFast,
+                                   StepForm steps = StepForm::kTwoSigmoid);
 
 /// Sets p's q_f, q_s, q_o from the step-adjustment columns [N, kStepColumns] (the layout's last).
 void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p,
-                     Arithmetic arithmetic = Arithmetic::kFast);
+                     Arithmetic arithmetic = Arithmetic::kFast,
+                     StepForm steps = StepForm::kTwoSigmoid);
 
 /// Evaluates `context` on positions01 in fixed chunks of `chunk` rows, in order, and splits.
 /// The codec calls it with the same chunking on both sides; with kPortable (context.forward_
 /// portable, portable tanh) encoder and decoder get the same bits on any machine.
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
-                                     int64_t chunk, Arithmetic arithmetic);
+                                     int64_t chunk, Arithmetic arithmetic,
+                                     StepForm steps = StepForm::kTwoSigmoid);
 
 /// CRP-GS's leaf-feature mean (method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
 /// Linear(Dc + 6 → H) → ReLU → Linear(H → Dc), positions normalised by the anchor bounds; with

@@ -26,8 +26,9 @@ using coding::ByteSpan;
 using coding::ByteWriter;
 
 constexpr const char* kComponent = "org.crpgs.codec.anchor_model";
-// Minor 1: entropy parameters in portable arithmetic (CodedModel::arithmetic).
-constexpr uint16_t kMajor = 1, kMinor = 1;
+// Minor 1: entropy parameters in portable arithmetic (CodedModel::arithmetic). Minor 2: steps
+// by StepForm::kTwoSigmoid (CodedModel::steps). set_format_math says what each minor computes.
+constexpr uint16_t kMajor = 1, kMinor = 2;
 constexpr const char* kCompactLinks = "org.crpgs.links.compact";  // LINK, compact coding
 // Sanity limits for counts read from a file (refused before anything is allocated).
 constexpr uint64_t kMaxOffsets = 64, kMaxCodedDim = 4096, kMaxChunk = 1 << 20;
@@ -149,8 +150,9 @@ EntropyParams base_params(const CodedModel& m, const CodingPlan& plan, ContextMo
   const auto pos01 = normalize_positions(voxel_positions(m.voxels, m.voxel_size), m.bounds)
                          .index_select(0, plan.order);
   const EntropyParamLayout layout{coded_dim, m.offset_masks.size(1)};
-  return map_params(predict_entropy_params(context, pos01, layout, m.q0, m.chunk, m.arithmetic),
-                    [](const torch::Tensor& t) { return t.contiguous(); });
+  return map_params(
+      predict_entropy_params(context, pos01, layout, m.q0, m.chunk, m.arithmetic, m.steps),
+      [](const torch::Tensor& t) { return t.contiguous(); });
 }
 
 /// Replaces the leaves' μ_f (coding positions >= leaf_begin) with the leaf model, given the
@@ -280,6 +282,11 @@ StatusOr<std::vector<int32_t>> link_vector_of(const coding::Section& s) {
   return corrupt("LINK: unknown link coding '" + s.component_id + "'");
 }
 
+void set_format_math(uint16_t minor, CodedModel* m) {
+  m->arithmetic = minor >= 1 ? Arithmetic::kPortable : Arithmetic::kFast;
+  m->steps = minor >= 2 ? StepForm::kTwoSigmoid : StepForm::kOnePlusTanh;
+}
+
 const char* section_category(const std::string& id) {
   if (id == "GEOM") return "geometry";
   if (id == "FEAT") return "features";
@@ -304,8 +311,8 @@ bool bounds_decodable(const float lo_hi[6]) {
 
 StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& config,
                                     const CodecComponents& c) {
-  CodedModel m = model;                  // shares the tensors
-  m.arithmetic = Arithmetic::kPortable;  // what this version (minor 1) writes
+  CodedModel m = model;  // shares the tensors
+  set_format_math(kMinor, &m);
   auto bad = [](const std::string& msg) {
     return Status(StatusCode::kInvalidArgument, "encode: " + msg);
   };
@@ -509,7 +516,7 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.offset));
   // A later minor version may append fields; this one has none after Q0.
   if (hs->component_minor <= kMinor && !head.at_end()) return head.error("trailing bytes");
-  m.arithmetic = hs->component_minor >= 1 ? Arithmetic::kPortable : Arithmetic::kFast;
+  set_format_math(hs->component_minor, &m);
   if (K == 0 || K > kMaxOffsets) return corrupt("HEAD: offsets per anchor " + std::to_string(K));
   if (Dc == 0 || Dc > kMaxCodedDim) return corrupt("HEAD: feature width " + std::to_string(Dc));
   if (uint64_t(c.features->coded_dim()) != Dc || uint64_t(args.n_offsets) != K)

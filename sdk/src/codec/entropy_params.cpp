@@ -35,20 +35,33 @@ torch::Tensor portable_linear(const torch::Tensor& x, const torch::Tensor& w,
   return y;
 }
 
-torch::Tensor portable_tanh(const torch::Tensor& x) {
-  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat,
-              "portable_tanh: float CPU tensors only");
+namespace {
+using RangeKernel = void (*)(const float*, int64_t, int64_t, float*);
+
+// An elementwise portable kernel over a float CPU tensor.
+torch::Tensor map_portable(const torch::Tensor& x, RangeKernel kernel, const char* name) {
+  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat, name,
+              ": float CPU tensors only");
   const auto xc = x.detach().contiguous();
   auto y = torch::empty_like(xc);
   const float* xp = xc.data_ptr<float>();
   float* yp = y.data_ptr<float>();
   at::parallel_for(0, xc.numel(), 4096,
-                   [&](int64_t first, int64_t last) { portable::tanh_range(xp, first, last, yp); });
+                   [&](int64_t first, int64_t last) { kernel(xp, first, last, yp); });
   return y;
+}
+}  // namespace
+
+torch::Tensor portable_tanh(const torch::Tensor& x) {
+  return map_portable(x, portable::tanh_range, "portable_tanh");
+}
+
+torch::Tensor portable_one_plus_tanh(const torch::Tensor& x) {
+  return map_portable(x, portable::one_plus_tanh_range, "portable_one_plus_tanh");
 }
 
 EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamLayout& layout,
-                                   const QuantSteps& q0, Arithmetic arithmetic) {
+                                   const QuantSteps& q0, Arithmetic arithmetic, StepForm steps) {
   TORCH_CHECK(out.dim() == 2 && out.size(1) == layout.width(), "context output must be [N, ",
               layout.width(), "], got ", out.sizes());
   const int64_t dc = layout.coded_dim, ko = 3 * layout.n_offsets;
@@ -61,18 +74,21 @@ EntropyParams split_entropy_params(const torch::Tensor& out, const EntropyParamL
   p.sigma_s = parts[3];
   p.mu_o = parts[4];
   p.sigma_o = parts[5];
-  set_quant_steps(parts[6], q0, &p, arithmetic);
+  set_quant_steps(parts[6], q0, &p, arithmetic, steps);
   return p;
 }
 
 void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, EntropyParams* p,
-                     Arithmetic arithmetic) {
+                     Arithmetic arithmetic, StepForm steps) {
   TORCH_CHECK(step_columns.dim() == 2 && step_columns.size(1) == EntropyParamLayout::kStepColumns,
               "step columns must be [N, 3], got ", step_columns.sizes());
-  // 1 + tanh and the products with Q0 are single IEEE operations: portable once tanh is.
-  const auto a = (arithmetic == Arithmetic::kPortable ? portable_tanh(step_columns)
-                                                      : torch::tanh(step_columns)) +
-                 1;
+  // + 1 and the products with Q0 are single IEEE operations: portable once tanh is.
+  const bool portable = arithmetic == Arithmetic::kPortable;
+  torch::Tensor a;  // 1 + tanh(step_columns)
+  if (steps == StepForm::kOnePlusTanh)
+    a = (portable ? portable_tanh(step_columns) : torch::tanh(step_columns)) + 1;
+  else
+    a = portable ? portable_one_plus_tanh(step_columns) : 2 * torch::sigmoid(2 * step_columns);
   p->q_f = q0.feature * a.slice(1, 0, 1);
   p->q_s = q0.scaling * a.slice(1, 1, 2);
   p->q_o = q0.offset * a.slice(1, 2, 3);
@@ -80,7 +96,7 @@ void set_quant_steps(const torch::Tensor& step_columns, const QuantSteps& q0, En
 
 EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor& positions01,
                                      const EntropyParamLayout& layout, const QuantSteps& q0,
-                                     int64_t chunk, Arithmetic arithmetic) {
+                                     int64_t chunk, Arithmetic arithmetic, StepForm steps) {
   TORCH_CHECK(chunk > 0, "chunk must be positive");
   // Encoder, decoder and the training-side quantised model must get bit-identical parameters.
   // kFast: one thread in torch and in OpenBLAS, whose kernels may otherwise split sums by thread
@@ -95,7 +111,7 @@ EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor&
   }
   torch::Tensor out =
       outs.empty() ? torch::zeros({0, layout.width()}, positions01.options()) : torch::cat(outs, 0);
-  return split_entropy_params(out, layout, q0, arithmetic);
+  return split_entropy_params(out, layout, q0, arithmetic, steps);
 }
 
 StatusOr<LeafMlp> leaf_mlp_from(const std::map<std::string, torch::Tensor>& mlps, int64_t coded_dim,

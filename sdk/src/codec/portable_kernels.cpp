@@ -85,5 +85,13 @@ void tanh_range(const float* x, int64_t first, int64_t last, float* y) {
   }
 }
 
+void one_plus_tanh_range(const float* x, int64_t first, int64_t last, float* y) {
+  // No cancellation where tanh(x) is near −1; portable_exp gives 0 or inf at the far ends.
+  for (int64_t i = first; i < last; ++i) {
+    const double d = x[i];
+    y[i] = std::isnan(d) ? x[i] : float(2.0 / (1.0 + portable_exp(-2.0 * d)));
+  }
+}
+
 }  // namespace portable
 }  // namespace crpgs

@@ -13,4 +13,7 @@ void linear_rows(const float* x, const float* wt, const float* b, int64_t first,
 /// y[i] = tanh(x[i]) for i in [first, last).
 void tanh_range(const float* x, int64_t first, int64_t last, float* y);
 
+/// y[i] = 1 + tanh(x[i]) = 2 / (1 + exp(−2 x[i])) for i in [first, last).
+void one_plus_tanh_range(const float* x, int64_t first, int64_t last, float* y);
+
 }  // namespace crpgs::portable

@@ -236,8 +236,8 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
     q_root = split_entropy_params(context->forward(root_pos01), layout, rate.q0).q_f;
   }
   auto f_root = p(i_feat).index_select(0, roots);
-  // A saturated step (q = 0: tanh = -1 in float) codes the root's feature as 0 (quantize()); the
-  // same here, instead of 0/0.
+  // A saturated step (q = 0: 2·sigmoid(2a) underflows for a ≲ −44) codes the root's feature as
+  // 0 (quantize()); the same here, instead of 0/0.
   auto decoded =
       torch::where(q_root > 0, torch::round(f_root / q_root) * q_root, torch::zeros_like(f_root));
   auto f_hat = f_root + (decoded - f_root).detach();
