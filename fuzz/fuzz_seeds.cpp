@@ -27,6 +27,9 @@ struct Variant {
   int64_t anchors;
   bool links = false;
   bool all_masked = false;
+  /// Non-zero: the context's step outputs a are about this (its last bias), so the adaptive
+  /// steps are tiny and 1 + tanh a has lost most of its digits in float.
+  double step_bias = 0;
 };
 
 std::vector<Variant> variants() {
@@ -48,6 +51,7 @@ std::vector<Variant> variants() {
       {"float_grid",
        std::string(kContext) + ", binarize: false}\n" + kModel + "scene: {appearance_dim: 2}\n",
        10},
+      {"small_steps", ctx + kModel + plain_scene, 12, false, false, -5.0},
   };
 }
 
@@ -78,6 +82,11 @@ StatusOr<Seed> make_seed(const Variant& v, const ComponentRegistry& reg, uint32_
   coding::sort_morton(&pts);
 
   torch::NoGradGuard no_grad;
+  if (v.step_bias != 0) {
+    // hash_grid's parameters end with mlp_grid's output bias; its last columns are the steps'.
+    const torch::Tensor bias = c.context->parameters().back();
+    bias.slice(0, bias.size(0) - EntropyParamLayout::kStepColumns).fill_(v.step_bias);
+  }
   auto gen = at::detail::createCPUGenerator(seed);
   CodedModel m;
   m.voxel_size = 0.05;

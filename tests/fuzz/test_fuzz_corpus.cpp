@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <tuple>
 
 #include <yaml-cpp/yaml.h>
 
@@ -145,6 +146,58 @@ TEST(FuzzCorpus, CommittedCorpusAndCrashesAreDecodedOrRefused) {
     }
   EXPECT_GE(files, 14u) << "the committed corpus (at least the seeds) is missing from " << root;
   EXPECT_GT(decoded, 0u) << "no committed input decodes: the corpus has lost its valid seeds";
+}
+
+// --- Older formats -----------------------------------------------------------------------------
+
+/// tests/data/format_1_1 holds the seeds as format 1.1 wrote them (its README says how). They
+/// decode as written (1 + tanh steps) to the models today's seeds (format 1.2) decode to; a
+/// decoder that computed their steps the 1.2 way would get other CDFs and fail or differ.
+TEST(OlderFormats, FormatOneOneSeedsDecodeAsWritten) {
+  SKIP_WITHOUT_PLUGINS();
+  const fs::path dir = fs::path(CRPGS_SOURCE_DIR) / "tests" / "data" / "format_1_1";
+  const ComponentRegistry& registry = test::test_registry();
+  size_t checked = 0;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    if (e.path().extension() != ".crpg") continue;
+    ASSERT_EQ(seeds().count(name), 1u) << name << " is no longer a seed";
+    auto old_bytes = read_file_bytes(e.path().string());
+    ASSERT_TRUE(old_bytes.ok()) << old_bytes.status().to_string();
+    for (const auto& s : sections_of(*old_bytes)) {
+      if (s.component_id == "org.crpgs.codec.anchor_model") {
+        EXPECT_EQ(s.component_minor, 1) << name << " " << s.id;
+      }
+    }
+    auto old_dec = decode_model(*old_bytes, registry);
+    ASSERT_TRUE(old_dec.ok()) << name << ": " << old_dec.status().to_string();
+    auto new_dec = decode_model(seeds().at(name), registry);
+    ASSERT_TRUE(new_dec.ok()) << name << ": " << new_dec.status().to_string();
+    const CodedModel &a = old_dec->model, &b = new_dec->model;
+    EXPECT_EQ(a.steps, StepForm::kOnePlusTanh) << name;
+    EXPECT_EQ(b.steps, StepForm::kTwoSigmoid) << name;
+    for (const auto& [what, x, y] : {std::tuple{"voxels", a.voxels, b.voxels},
+                                     std::tuple{"offset masks", a.offset_masks, b.offset_masks},
+                                     std::tuple{"feature symbols", a.feature_sym, b.feature_sym},
+                                     std::tuple{"scaling symbols", a.scaling_sym, b.scaling_sym},
+                                     std::tuple{"offset symbols", a.offset_sym, b.offset_sym}})
+      EXPECT_TRUE(torch::equal(x, y)) << name << ": " << what;
+    EXPECT_EQ(a.links.defined(), b.links.defined()) << name;
+    if (a.links.defined() && b.links.defined()) {
+      EXPECT_TRUE(torch::equal(a.links, b.links)) << name;
+    }
+    // The same steps, up to 1 + tanh's rounding near 1 (an ulp of 1, times Q0): in
+    // seed-small_steps (a ≈ −5) that is ~1e-3 of the step, and enough to change every CDF.
+    const int64_t dc = a.feature_sym.size(1);
+    const auto pa = coded_entropy_params(a, *old_dec->components.context, dc);
+    const auto pb = coded_entropy_params(b, *new_dec->components.context, dc);
+    for (const auto& [x, y, q0] :
+         {std::tuple{pa.q_f, pb.q_f, a.q0.feature}, std::tuple{pa.q_s, pb.q_s, a.q0.scaling},
+          std::tuple{pa.q_o, pb.q_o, a.q0.offset}})
+      EXPECT_TRUE(((x - y).abs() <= 1e-5 * y + 1.2e-7 * q0).all().item<bool>()) << name;
+    ++checked;
+  }
+  EXPECT_GE(checked, 9u) << "the format 1.1 files are missing from " << dir;
 }
 
 // --- Absurd counts in small files --------------------------------------------------------------
