@@ -172,15 +172,15 @@ TEST(Codec, CorruptAndTruncatedFilesAreRefused) {
   }
 }
 
-// The file rebuilt (valid CRCs) with the codec's sections at `minor` and one byte of the SCAL
-// stream's data flipped.
-coding::Bytes relabelled_with_bad_scal(const coding::Bytes& file, uint16_t minor) {
+// The file rebuilt (valid CRCs) with the codec's sections at `minor` and, with bad_scal, one
+// byte of the SCAL stream's data flipped.
+coding::Bytes relabelled(const coding::Bytes& file, uint16_t minor, bool bad_scal) {
   auto ct = coding::ContainerReader::parse(file);
   EXPECT_TRUE(ct.ok()) << ct.status().to_string();
   coding::ContainerWriter w(ct->header.config_hash, ct->header.flags);
   for (coding::Section sec : ct->sections) {
     if (sec.component_id == "org.crpgs.codec.anchor_model") sec.component_minor = minor;
-    if (sec.id == "SCAL") sec.payload[sec.payload.size() / 2] ^= 0x5a;
+    if (bad_scal && sec.id == "SCAL") sec.payload[sec.payload.size() / 2] ^= 0x5a;
     EXPECT_TRUE(w.add_section(std::move(sec)).ok());
   }
   return w.finish();
@@ -194,24 +194,24 @@ TEST(Codec, FormatOneZeroStreamErrorsNameTheKernelDependence) {
   auto enc = encode_model(f->model, f->config, f->components);
   ASSERT_TRUE(enc.ok()) << enc.status().to_string();
   const std::string hint = "format 1.0 file decodes only where the BLAS kernels";
-  auto v12 = decode_model(relabelled_with_bad_scal(enc->bytes, 2), registry());
+  auto v12 = decode_model(relabelled(enc->bytes, 2, true), registry());
   ASSERT_FALSE(v12.ok());
   EXPECT_NE(v12.status().message().find("SCAL"), std::string::npos) << v12.status().message();
   EXPECT_EQ(v12.status().message().find(hint), std::string::npos) << v12.status().message();
-  auto v10 = decode_model(relabelled_with_bad_scal(enc->bytes, 0), registry());
+  auto v10 = decode_model(relabelled(enc->bytes, 0, true), registry());
   ASSERT_FALSE(v10.ok());
   EXPECT_NE(v10.status().message().find(hint), std::string::npos) << v10.status().message();
 }
 
 // Each minor version keeps the arithmetic it was written with; the encoder writes the newest
-// (1.2: steps by 2·sigmoid(2a), which neither cancels nor loses its gradient where a << 0).
+// (1.2: steps by 2·sigmoid(2a), which neither cancels nor loses its gradient where a << 0), and a
+// later one is refused (tests/data/format_1_1 checks that 1.1 files decode as written).
 TEST(Codec, EachFormatMinorDecodesWithItsOwnStepsAndArithmetic) {
   const std::pair<Arithmetic, StepForm> by_minor[] = {
       {Arithmetic::kFast, StepForm::kOnePlusTanh},
       {Arithmetic::kPortable, StepForm::kOnePlusTanh},
-      {Arithmetic::kPortable, StepForm::kTwoSigmoid},
-      {Arithmetic::kPortable, StepForm::kTwoSigmoid}};  // a later minor reads as the newest
-  for (uint16_t minor = 0; minor < 4; ++minor) {
+      {Arithmetic::kPortable, StepForm::kTwoSigmoid}};
+  for (uint16_t minor = 0; minor < 3; ++minor) {
     CodedModel m;
     set_format_math(minor, &m);
     EXPECT_EQ(m.arithmetic, by_minor[minor].first) << minor;
@@ -234,6 +234,12 @@ TEST(Codec, EachFormatMinorDecodesWithItsOwnStepsAndArithmetic) {
   EXPECT_EQ(dec->model.steps, StepForm::kTwoSigmoid);
   f->model.steps = StepForm::kTwoSigmoid;
   expect_same(f->model, dec->model);
+  auto later = decode_model(relabelled(enc->bytes, 3, false), registry());
+  ASSERT_FALSE(later.ok());
+  EXPECT_EQ(later.status().code(), StatusCode::kUnsupportedVersion);
+  EXPECT_NE(later.status().message().find("version 1.3, written by a newer crpgs"),
+            std::string::npos)
+      << later.status().message();
 }
 
 }  // namespace

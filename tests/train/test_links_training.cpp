@@ -221,8 +221,9 @@ TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
   EXPECT_FALSE((m.links() == root0).any().item<bool>());
 }
 
-// A root whose adaptive step saturates (tanh = -1 in float: q = 0) is coded as 0 (quantize); the
-// leaf model sees the same 0, not 0/0.
+// A root whose adaptive step saturates (q = 0: a = −1e4) is coded as 0 (quantize); the leaf model
+// sees the same 0, not 0/0. A tiny step clamps the coded feature about the features' mean, and
+// the leaf model sees the clamped value too.
 TEST(LinksTraining, ARootWithASaturatedStepGivesFiniteLeafMeans) {
   SKIP_WITHOUT_PLUGINS();
   Dataset ds = test::tiny_scene();
@@ -247,6 +248,20 @@ TEST(LinksTraining, ARootWithASaturatedStepGivesFiniteLeafMeans) {
   QuantizedAttributes q;
   ASSERT_TRUE(coded_model_from(m, &q).ok());
   EXPECT_EQ(q.features.abs().max().item<float>(), 0.f);  // every feature coded as 0
+  {
+    torch::NoGradGuard ng;
+    // a = −8: q = Q0·2/(1 + e^16) ≈ 2.3e-7, so the codec keeps features within mean ± 3.4e-3.
+    auto params = m.context()->parameters();
+    params[4].narrow(0, params[4].size(0) - 3, 3).fill_(-8.f);
+    // ±100, half of each in every row: the features' mean is exactly 0 before and after doubling.
+    auto f = m.features();
+    f.copy_((torch::arange(f.size(1)) % 2 * 2 - 1).to(torch::kFloat).expand_as(f) * 100);
+    const auto mu1 = m.feature_means(leaves, torch::zeros({leaves.size(0), 50}));
+    f.mul_(2);
+    const auto mu2 = m.feature_means(leaves, torch::zeros({leaves.size(0), 50}));
+    EXPECT_TRUE(torch::isfinite(mu1).all().item<bool>());
+    EXPECT_TRUE(torch::equal(mu1, mu2)) << "the leaf model saw features the codec cannot store";
+  }
 }
 
 TEST(LinksTraining, ChainsAndBadShapesAreRefused) {

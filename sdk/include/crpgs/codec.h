@@ -78,8 +78,9 @@ struct CodedModel {
 };
 
 /// Sets m's arithmetic and steps to what a file whose codec sections have minor version `minor`
-/// computes (0: kFast, kOnePlusTanh; 1: kPortable, kOnePlusTanh; 2 and later: kPortable,
-/// kTwoSigmoid). The encoder writes the newest minor.
+/// computes (0: kFast, kOnePlusTanh; 1: kPortable, kOnePlusTanh; 2: kPortable, kTwoSigmoid).
+/// The encoder writes the newest minor; the decoder refuses a later one (it may compute its
+/// entropy parameters differently).
 void set_format_math(uint16_t minor, CodedModel* m);
 
 /// Roots, free anchors and leaves of a link vector [N] (counts).

@@ -25,7 +25,7 @@ struct EntropyParams {
   torch::Tensor mu_f, sigma_f;  ///< [N, Dc]
   torch::Tensor mu_s, sigma_s;  ///< [N, 6]
   torch::Tensor mu_o, sigma_o;  ///< [N, K*3]
-  torch::Tensor q_f, q_s, q_o;  ///< [N, 1] adaptive steps Q0·(1 + tanh a), in [0, 2·Q0)
+  torch::Tensor q_f, q_s, q_o;  ///< [N, 1] adaptive steps Q0·(1 + tanh a), in [0, 2·Q0]
 };
 
 /// How entropy parameters are computed. kFast: BLAS and ATen, differentiable (training), last

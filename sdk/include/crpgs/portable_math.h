@@ -22,7 +22,8 @@ torch::Tensor portable_linear(const torch::Tensor& x, const torch::Tensor& w,
 torch::Tensor portable_tanh(const torch::Tensor& x);
 
 /// 1 + tanh(x) of a float CPU tensor as 2 / (1 + exp(−2x)), in double from portable_exp, rounded
-/// to float: accurate (and positive down to x ≈ −354) where 1 + tanh(x) in float cancels to 0.
+/// to float: accurate (and positive down to x ≈ −51, float's smallest subnormal) where 1 + tanh(x)
+/// in float cancels to 0.
 torch::Tensor portable_one_plus_tanh(const torch::Tensor& x);
 
 }  // namespace crpgs

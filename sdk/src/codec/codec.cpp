@@ -478,6 +478,15 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
                         std::to_string(s.component_major) + "." +
                         std::to_string(s.component_minor) + ", this decoder reads " +
                         std::to_string(kMajor) + ".x");
+    // A later minor of this codec may compute the entropy parameters differently (1.2 did):
+    // decoding it with this version's arithmetic would fail or, worse, not.
+    if (s.component_id == kComponent && s.component_minor > kMinor)
+      return Status(StatusCode::kUnsupportedVersion,
+                    "bitstream: section " + s.id + " (" + s.component_id + ") has version " +
+                        std::to_string(s.component_major) + "." +
+                        std::to_string(s.component_minor) +
+                        ", written by a newer crpgs; this decoder reads up to " +
+                        std::to_string(kMajor) + "." + std::to_string(kMinor));
     out.sections.push_back({s.id, s.component_id, s.file_size});
   }
 
@@ -514,8 +523,7 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.feature));
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.scaling));
   CRPGS_RETURN_IF_ERROR(head.read_f64(&m.q0.offset));
-  // A later minor version may append fields; this one has none after Q0.
-  if (hs->component_minor <= kMinor && !head.at_end()) return head.error("trailing bytes");
+  if (!head.at_end()) return head.error("trailing bytes");
   set_format_math(hs->component_minor, &m);
   if (K == 0 || K > kMaxOffsets) return corrupt("HEAD: offsets per anchor " + std::to_string(K));
   if (Dc == 0 || Dc > kMaxCodedDim) return corrupt("HEAD: feature width " + std::to_string(Dc));

@@ -93,6 +93,13 @@ torch::Tensor clamp_about(const torch::Tensor& x, float mean, const torch::Tenso
   return torch::min(torch::max(x, mean - r), mean + r);
 }
 
+// The codec's symbols of x with steps q about `mean` (float, no gradient): round(x/q) within
+// mean ± 15000 q, and 0 where q = 0 (a saturated step) instead of inf or NaN.
+torch::Tensor code_symbols(const torch::Tensor& x, float mean, const torch::Tensor& q) {
+  auto k = torch::round(clamp_about(x.detach(), mean, q) / q);
+  return torch::nan_to_num(k, 0.0, 0.0, 0.0).clamp(-double(1 << 30), double(1 << 30));
+}
+
 // Voxel keys for set membership; coordinates are far inside +-2^20 for any sane voxel size.
 torch::Tensor cell_keys(const torch::Tensor& cells) {  // [N, 3] int64 -> [N]
   auto c = cells.clamp(-(int64_t(1) << 20) + 1, (int64_t(1) << 20) - 1) + (int64_t(1) << 20);
@@ -214,8 +221,9 @@ struct AnchorModel::Impl {
 };
 
 // μ_f of the anchors `rows` [S] with the leaf model where the anchor is a leaf of an active root
-// (method.md §7.9-§7.10): f̂_root = round(f/Q)·Q through a straight-through estimator with Q
-// detached; the root's Q and position are computed on demand (it need not be visible).
+// (method.md §7.9-§7.10): f̂_root = the codec's value of f (code_symbols·Q) through a
+// straight-through estimator with Q detached; the root's Q and position are computed on demand
+// (it need not be visible).
 torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
                                             const torch::Tensor& base_mu) const {
   auto root = links.index_select(0, rows);  // [S]
@@ -236,11 +244,10 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
     q_root = split_entropy_params(context->forward(root_pos01), layout, rate.q0).q_f;
   }
   auto f_root = p(i_feat).index_select(0, roots);
-  // A saturated step (q = 0: 2·sigmoid(2a) underflows for a ≲ −44) codes the root's feature as
-  // 0 (quantize()); the same here, instead of 0/0.
-  auto decoded =
-      torch::where(q_root > 0, torch::round(f_root / q_root) * q_root, torch::zeros_like(f_root));
-  auto f_hat = f_root + (decoded - f_root).detach();
+  // The root's feature as the decoder will have it (quantize()): clamped about the features'
+  // mean, 0 where the step is saturated.
+  const auto decoded = code_symbols(f_root, serial_mean(p(i_feat)), q_root) * q_root;
+  auto f_hat = decoded + (f_root - f_root.detach());  // exactly `decoded`, gradient 1
   const LeafMlp mlp{p(i_leaf), p(i_leaf + 1), p(i_leaf + 2), p(i_leaf + 3), link_opt.residual};
   auto mu_leaf =
       leaf_feature_mean(mlp, f_hat, root_pos01, leaf_pos01, base_mu.index_select(0, leaf_rows));
@@ -659,9 +666,7 @@ QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantStep
     *t = t->detach().contiguous();
   auto quant = [](const torch::Tensor& x, float mean, const torch::Tensor& step, torch::Tensor* sym,
                   torch::Tensor* val) {
-    auto k = torch::round(clamp_about(x, mean, step) / step);
-    k = torch::nan_to_num(k, 0.0, 0.0, 0.0).clamp(-double(1 << 30), double(1 << 30));
-    *sym = k.to(torch::kInt);
+    *sym = code_symbols(x, mean, step).to(torch::kInt);
     *val = sym->to(torch::kFloat) * step;
   };
   const auto feat = m.p(m.i_feat).detach();

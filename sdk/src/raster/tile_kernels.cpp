@@ -497,10 +497,12 @@ double alpha_extent(const float* con, float op, float& ex, float& ey) {
   const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
   if (!(Q > 0)) {
     ex = ey = -1.f;
-  } else if (!(det > 0)) {
+  } else if (!(det > 0) && std::isfinite(det)) {
     // A needle too long for float conics (σ ≳ 3000 px): a c − b² of the stored floats is exact
     // here and not positive, so the loop's test bounds no ellipse; the radius box does.
     ex = ey = kUnboundedExtent;
+  } else if (!std::isfinite(det)) {
+    ex = ey = -1.f;  // a non-finite conic draws nothing
   } else {
     ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
     ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);
