@@ -63,6 +63,16 @@ int report_error(const Status& st) {
   return 1;
 }
 
+StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
+                                                           const ComponentRegistry& registry,
+                                                           const SetupOptions& options) {
+  auto trainer = setup_training(cfg, registry, options);
+  if (trainer.ok())
+    for (const std::string& w : trainer.value()->dataset().warnings)
+      std::fprintf(stderr, "warning: %s\n", w.c_str());
+  return trainer;
+}
+
 namespace {
 namespace fs = std::filesystem;
 
@@ -131,7 +141,8 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
   CRPGS_ASSIGN_OR_RETURN(Config cfg, setup_config(model_config, g, r, threads));
   CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
   const bool run = s.kind == "run";
-  CRPGS_ASSIGN_OR_RETURN(s.setup, setup_training(cfg, r, SetupOptions{run ? source : "", run}));
+  CRPGS_ASSIGN_OR_RETURN(s.setup,
+                         setup_training_and_warn(cfg, r, SetupOptions{run ? source : "", run}));
   if (run && s.setup->iteration() == 0)
     return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
   if (run && s.setup->model().has_rate()) {

@@ -41,6 +41,12 @@ void print_eval(const EvalResult& r);
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);
 
+/// setup_training, then the dataset's warnings (ignored lens distortion, no SfM points, ...) on
+/// stderr: the SDK only collects them.
+StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
+                                                           const ComponentRegistry& registry,
+                                                           const SetupOptions& options);
+
 /// The model file of a `crpgs decode` directory (next to its config.yaml).
 constexpr const char* kDecodedModelFile = "decoded.pt";
 /// Reads a `crpgs decode` model file with the components of `cfg` (cmd_render.cpp, next to

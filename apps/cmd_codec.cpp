@@ -199,7 +199,7 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
   ComponentRegistry r = load_registry(g);
   auto cfg = load_config(run_dir + "/config.yaml", g, r);
   if (!cfg.ok()) return report_error(cfg.status());
-  auto trainer = setup_training(cfg.value(), r, SetupOptions{run_dir, true});
+  auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
   if (!trainer.ok()) return report_error(trainer.status());
   if (trainer.value()->iteration() == 0)
     return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));

@@ -121,12 +121,15 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
   set_compute_threads(threads);
   auto ply = read_ply(path);
   if (!ply.ok()) return report_error(ply.status());
+  if (ply->dropped_non_finite > 0)
+    std::fprintf(stderr, "warning: %s: %zu Gaussians with a NaN or infinite value left out\n",
+                 path.c_str(), ply->dropped_non_finite);
   auto cfg = load_config(config, g, r);
   if (!cfg.ok()) return report_error(cfg.status());
   auto options = model_options_from_config(cfg.value());
   if (!options.ok()) return report_error(options.status());
   // The dataset and rasterizer exactly as the config sets them up (its model is not used).
-  auto setup = setup_training(cfg.value(), r, SetupOptions{});
+  auto setup = setup_training_and_warn(cfg.value(), r, SetupOptions{});
   if (!setup.ok()) return report_error(setup.status());
   auto ev = evaluate_ply(ply.value(), setup.value()->rasterizer(), setup.value()->dataset().test,
                          options->effects.background, png_dir);

@@ -74,7 +74,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());
 
-  auto trainer = setup_training(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
+  auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
   if (!trainer.ok()) return report_error(trainer.status());
   Trainer& t = *trainer.value();
   std::printf("scene: %zu train / %zu test views of %dx%d, %lld anchors\n",
@@ -237,7 +237,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(run_dir + "/config.yaml", g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    auto trainer = setup_training(cfg.value(), r, SetupOptions{run_dir, true});
+    auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
     if (!trainer.ok()) throw CLI::RuntimeError(report_error(trainer.status()));
     if (trainer.value()->iteration() == 0)
       throw CLI::RuntimeError(report_error(

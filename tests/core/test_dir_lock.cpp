@@ -76,6 +76,14 @@ TEST(DirectoryLock, AHolderThatDiesLeavesNoStaleLock) {
 }
 
 // What a killed write_file_atomic leaves behind goes; everything else stays.
+TEST(AtomicFile, ReadingADirectoryIsAnErrorNotAHugeAllocation) {
+  const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/a_directory";
+  std::filesystem::create_directories(dir);
+  auto r = read_file_bytes(dir);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("is a directory"), std::string::npos) << r.status().message();
+}
+
 TEST(AtomicFile, StaleTempFilesAreRemovedAndNothingElse) {
   const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/stale_tmp";
   std::filesystem::remove_all(dir);

@@ -7,7 +7,9 @@
 #include <cstring>
 #include <filesystem>
 
+#include "cli_output.h"
 #include "crpgs/dataset.h"
+#include "crpgs/ply.h"
 #include "io/colmap.h"
 #include "io_test_util.h"
 
@@ -105,6 +107,56 @@ TEST(Colmap, HandWrittenTextModelProjectsToTheKnownPixel) {
   const Eigen::Vector2d q1 = project(half->train[0].camera, X);
   EXPECT_NEAR(q1.x(), 38.1666667 / 2, 1e-5);
   EXPECT_NEAR(q1.y(), 27.7166667 / 2, 1e-5);
+}
+
+TEST(Colmap, TextModelsWithoutPointsLinesOrWithAbsurdSizesAreRefused) {
+  const fs::path root = test::fresh_dir();
+  fs::create_directories(root / "sparse" / "0");
+  test::write_bytes(root / "sparse/0/cameras.txt", "1 PINHOLE 64 48 50 52 31.5 24.25\n");
+  // No POINTS2D line after each image line: every other image would be read as keypoints.
+  test::write_bytes(root / "sparse/0/images.txt",
+                    "1 1 0 0 0 0.1 -0.2 2 1 one.png\n"
+                    "2 1 0 0 0 0.2 -0.2 2 1 two.png\n");
+  auto m = io::read_colmap_text((root / "sparse/0").string());
+  ASSERT_FALSE(m.ok());
+  EXPECT_TRUE(contains(m.status().message(), "POINTS2D line")) << m.status().message();
+  // A width beyond int: it used to wrap to 640.
+  test::write_bytes(root / "sparse/0/images.txt", "1 1 0 0 0 0.1 -0.2 2 1 one.png\n\n");
+  test::write_bytes(root / "sparse/0/cameras.txt", "1 PINHOLE 4294967936 48 50 52 31.5 24.25\n");
+  fs::create_directories(root / "images");
+  write_images(root / "images", {"one.png"}, 64, 48);
+  auto ds = load(root);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "4294967936x48")) << ds.status().message();
+}
+
+// The dataset's warnings reach the user: `crpgs import` (any command that loads a dataset)
+// prints them. synthetic_model's camera 2 is SIMPLE_RADIAL, whose k is ignored.
+TEST(Colmap, TheCliPrintsTheDatasetsWarnings) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "this build has no crpgs executable";
+#else
+  const fs::path root = test::fresh_dir();
+  fs::create_directories(root / "sparse/0");
+  ASSERT_TRUE(io::write_colmap_binary(synthetic_model(), (root / "sparse/0").string()).ok());
+  write_images(root / "images", {"a.png", "b.png", "c.png"}, 16, 12);
+  PlyGaussians g;
+  g.means = {0, 0, 2};
+  g.sh_dc = {0.1f, 0.2f, 0.3f};
+  g.opacity = {0};
+  g.log_scales = {-2, -2, -2};
+  g.rotations = {1, 0, 0, 0};
+  ASSERT_TRUE(write_ply((root / "one.ply").string(), g).ok());
+  test::write_bytes(root / "cfg.yaml", "dataset: {path: '" + root.string() +
+                                           "', format: colmap, test_every: 2}\n"
+                                           "train: {threads: 1}\n");
+  int rc = -1;
+  const std::string out = test::crpgs_output(
+      "import '" + (root / "one.ply").string() + "' -c '" + (root / "cfg.yaml").string() + "'",
+      &rc);
+  EXPECT_EQ(rc, 0) << out;
+  EXPECT_TRUE(contains(out, "warning: camera 2 (SIMPLE_RADIAL): distortion ignored")) << out;
+#endif
 }
 
 TEST(Colmap, TextAndBinaryWritersRoundTripToTheSameCameras) {

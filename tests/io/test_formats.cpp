@@ -55,6 +55,12 @@ TEST(Json, ParsesTransformsStyleDocuments) {
   ASSERT_FALSE(bad.ok());
   EXPECT_TRUE(contains(bad.status().message(), "line 1")) << bad.status().message();
   EXPECT_FALSE(io::parse_json("{\"a\": 1} x").ok());
+  // strtod's extensions and out-of-range values are not JSON numbers.
+  for (const char* num : {"-inf", "-nan", "0x10", "1e999", "-", "-.5"}) {
+    auto r = io::parse_json(std::string("{\"fl_x\": ") + num + "}");
+    EXPECT_FALSE(r.ok()) << num;
+  }
+  EXPECT_DOUBLE_EQ(io::parse_json("[-0.5e-3]")->array[0].number, -0.5e-3);
 }
 
 TEST(Npy, ParsesHeaderAndRejectsTruncation) {
@@ -71,6 +77,12 @@ TEST(Npy, ParsesHeaderAndRejectsTruncation) {
   std::string f4 = bytes;
   f4.replace(f4.find("<f8"), 3, "<i8");
   EXPECT_FALSE(io::parse_npy(f4, "x.npy").ok());
+  // A shape whose byte count overflows size_t (2^61 · 8 = 2^64 wraps to 0).
+  std::string huge = bytes;
+  huge.replace(huge.find("(2, 3)"), 6, "(2305843009213693952,)");
+  auto h = io::parse_npy(huge, "x.npy");
+  ASSERT_FALSE(h.ok());
+  EXPECT_TRUE(contains(h.status().message(), "too large")) << h.status().message();
 }
 
 class Llff : public ::testing::Test {
@@ -149,6 +161,29 @@ TEST_F(Llff, PoseCountMismatchAndTruncationAreErrors) {
   ds = load_dataset(o);
   ASSERT_FALSE(ds.ok());
   EXPECT_TRUE(contains(ds.status().message(), "poses_bounds.npy")) << ds.status().message();
+}
+
+TEST(InstantNgp, NonFiniteIntrinsicsAndAbsurdSizesAreRefused) {
+  const fs::path root = test::fresh_dir();
+  ASSERT_TRUE(save_png(test::random_image(32, 24, 3, 1), (root / "f0.png").string()).ok());
+  const std::string frame =
+      "\"frames\": [{\"file_path\": \"f0.png\", \"transform_matrix\": "
+      "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]}";
+  DatasetOptions o;
+  o.path = root.string();
+  o.test_every = 0;
+  // camera_angle_x = 0: fx = 16 / tan(0) = inf.
+  test::write_bytes(root / "transforms.json", "{\"camera_angle_x\": 0, " + frame);
+  auto ds = load_dataset(o);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "not finite")) << ds.status().message();
+  test::write_bytes(root / "transforms.json", "{\"fl_x\": 30, \"w\": 1e12, \"h\": 24, " + frame);
+  ds = load_dataset(o);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "bad camera size")) << ds.status().message();
+  test::write_bytes(root / "transforms.json", "{\"fl_x\": 30, " + frame);
+  ds = load_dataset(o);
+  EXPECT_TRUE(ds.ok()) << ds.status().message();
 }
 
 TEST(InstantNgp, IntrinsicsFromFieldsOpenGlConvertedAndEveryEighthIsTest) {

@@ -81,6 +81,18 @@ TEST(Image, LoadErrorsNameThePath) {
   const std::string bytes = test::read_bytes(dir / "full.png");
   test::write_bytes(dir / "half.png", bytes.substr(0, bytes.size() / 2));
   EXPECT_FALSE(load_image((dir / "half.png").string()).ok());
+
+  // A few bytes declaring 20000 x 20000 grey pixels (IHDR width and height, big-endian at 16
+  // and 20; stb itself refuses only above 2^30 bytes): refused before decoding, not 1.6 GB of
+  // floats (in a loader thread, bad_alloc would end the process).
+  ASSERT_TRUE(save_png(test::random_image(32, 32, 1, 2), (dir / "grey.png").string()).ok());
+  std::string bomb = test::read_bytes(dir / "grey.png");
+  for (int at : {16, 20}) bomb.replace(size_t(at), 4, std::string("\x00\x00\x4e\x20", 4));
+  test::write_bytes(dir / "bomb.png", bomb);
+  auto b = load_image((dir / "bomb.png").string());
+  ASSERT_FALSE(b.ok());
+  EXPECT_NE(b.status().message().find("declares 20000x20000 pixels"), std::string::npos)
+      << b.status().message();
 }
 
 TEST(Image, DownscaleAveragesBlocks) {

@@ -160,9 +160,30 @@ TEST(Ply, RefusesMalformedFilesWithMessages) {
       "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty quad x\n"
       "end_header\n",
       "malformed property line");
+  auto twice = inria_props(0);
+  twice.push_back("opacity");
+  expect_refused(header_with(0, twice), "vertex property 'opacity' appears twice");
   PlyGaussians inconsistent = random_gaussians(2, 3, 4);
   inconsistent.sh_rest.pop_back();
   EXPECT_FALSE(encode_ply(inconsistent).ok());
+}
+
+TEST(Ply, VerticesWithNonFiniteValuesAreLeftOutAndCounted) {
+  PlyGaussians g = random_gaussians(1, 5, 7);
+  g.means[3 * 1 + 2] = std::numeric_limits<float>::quiet_NaN();   // vertex 1
+  g.sh_rest[9 * 3 + 4] = std::numeric_limits<float>::infinity();  // vertex 3
+  auto r = decode(*encode_ply(g));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->dropped_non_finite, 2u);
+  ASSERT_EQ(r->size(), 3u);
+  EXPECT_TRUE(r->check().ok());
+  for (size_t k = 0; k < 3; ++k) {  // vertices 0, 2, 4 in order
+    const size_t i = 2 * k;
+    EXPECT_EQ(r->opacity[k], g.opacity[i]);
+    EXPECT_EQ(r->means[3 * k + 2], g.means[3 * i + 2]);
+    EXPECT_EQ(r->sh_rest[9 * k + 8], g.sh_rest[9 * i + 8]);
+    EXPECT_EQ(r->rotations[4 * k + 3], g.rotations[4 * i + 3]);
+  }
 }
 
 TEST(Ply, ShBasisMatchesTheReferenceFormulas) {

@@ -31,6 +31,11 @@ struct Image {
 /// Decodes PNG/JPEG/BMP/TGA (stb). Keeps the file's channel count (1 grey, 2 grey+alpha, 3 RGB,
 /// 4 RGBA); 16-bit PNGs keep their precision. Errors name the path and stb's reason.
 StatusOr<Image> load_image(const std::string& path);
+/// Images above this many pixels are refused before decoding (a few header bytes must not ask
+/// for gigabytes): 2^28, e.g. 16384 x 16384.
+inline constexpr int64_t kMaxImagePixels = int64_t(1) << 28;
+/// Largest image side a camera may declare.
+inline constexpr int kMaxImageSide = 1 << 16;
 /// Width, height and channel count from the file header, without decoding the pixels.
 struct ImageInfo {
   int width = 0, height = 0, channels = 0;

@@ -36,6 +36,8 @@ struct PlyGaussians {
   std::vector<float> opacity;     ///< [N] logit
   std::vector<float> log_scales;  ///< [N*3]
   std::vector<float> rotations;   ///< [N*4] (w, x, y, z)
+  /// Vertices of the file left out because a value was NaN or infinite (read_ply).
+  size_t dropped_non_finite = 0;
 
   size_t size() const { return opacity.size(); }
   /// Checks that every array matches size() and the degree.

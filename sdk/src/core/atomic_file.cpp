@@ -88,6 +88,9 @@ int remove_stale_temp_files(const std::string& dir) {
 }
 
 StatusOr<std::vector<uint8_t>> read_file_bytes(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))  // an ifstream opens it; its "size" is not one
+    return Status(StatusCode::kIoError, path + " is a directory, not a file");
   std::ifstream in(path, std::ios::binary);
   if (!in) return Status(StatusCode::kIoError, "cannot open " + path + ": " + std::strerror(errno));
   in.seekg(0, std::ios::end);

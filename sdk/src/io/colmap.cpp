@@ -13,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include "crpgs/atomic_file.h"
+#include "crpgs/image.h"
 
 namespace crpgs::io {
 namespace fs = std::filesystem;
@@ -246,6 +247,12 @@ Status read_images_txt(const std::string& path, ColmapModel& m) {
         im.xys.emplace_back(x, y);
         im.point3d_ids.push_back(pid);
       }
+      // Anything else (e.g. the next image's line: a POINTS2D line was left out) would drop
+      // every other image without a word.
+      if (!ps.eof())
+        return parse_error(path, ln,
+                           "expected this image's POINTS2D line (X Y POINT3D_ID triples, "
+                           "possibly empty) after its image line");
     }
     m.images.push_back(std::move(im));
   }
@@ -446,6 +453,12 @@ Status write_colmap_text(const ColmapModel& m, const std::string& dir) {
 
 StatusOr<Camera> colmap_camera(const ColmapCamera& c, const ColmapImage& im,
                                std::vector<std::string>* warnings) {
+  if (c.width < 1 || c.width > uint64_t(kMaxImageSide) || c.height < 1 ||
+      c.height > uint64_t(kMaxImageSide))
+    return Status(StatusCode::kInvalidArgument,
+                  "camera " + std::to_string(c.id) + " is " + std::to_string(c.width) + "x" +
+                      std::to_string(c.height) + " pixels, outside [1, " +
+                      std::to_string(kMaxImageSide) + "] per side");
   Camera cam;
   cam.width = int(c.width);
   cam.height = int(c.height);

@@ -50,6 +50,11 @@ Status invalid(const std::string& what) {
   return Status(StatusCode::kInvalidArgument, what);
 }
 
+// An image side a file declares: finite, in [1, kMaxImageSide] (int conversions stay defined).
+bool side_ok(double v) {
+  return v >= 1 && v <= kMaxImageSide;
+}
+
 // Image folder: options.images or "images"; lists the candidates when it is missing.
 StatusOr<fs::path> image_dir(const DatasetOptions& o) {
   const std::string name = o.images.empty() ? "images" : o.images;
@@ -312,7 +317,7 @@ Status load_llff(const DatasetOptions& o, Loaded& out, std::vector<std::string>&
     Pending v;
     v.camera = camera_from_c2w_opencv(rot, m.col(3));
     const double H = m(0, 4), W = m(1, 4), f = m(2, 4);
-    if (!(H > 0 && W > 0 && f > 0))
+    if (!(side_ok(H) && side_ok(W) && f > 0 && std::isfinite(f)) || !m.allFinite())
       return Status(StatusCode::kIoError,
                     file + ": row " + std::to_string(i) + " has a bad hwf column");
     v.camera.width = int(std::lround(W));
@@ -366,6 +371,9 @@ Image resample(Image im, const DatasetOptions& o) {
 Status resolve_camera(Pending& v, int w0, int h0, const std::string& path) {
   if (!v.intrinsics_known) {
     Camera& c = v.camera;
+    if ((!std::isnan(v.w) && !side_ok(v.w)) || (!std::isnan(v.h) && !side_ok(v.h)))
+      return invalid(path + ": bad camera size (" + std::to_string(v.w) + " x " +
+                     std::to_string(v.h) + ")");
     c.width = std::isnan(v.w) ? w0 : int(std::lround(v.w));
     c.height = std::isnan(v.h) ? h0 : int(std::lround(v.h));
     if (!std::isnan(v.fl_x))
@@ -385,15 +393,43 @@ Status resolve_camera(Pending& v, int w0, int h0, const std::string& path) {
     v.intrinsics_known = true;
   }
   const Camera& c = v.camera;
-  if (c.width <= 0 || c.height <= 0 || !(c.fx > 0) || !(c.fy > 0))
+  // Non-finite values (e.g. camera_angle_x = 0 gives fx = inf) would reach training as NaN.
+  const bool finite = std::isfinite(c.fx) && std::isfinite(c.fy) && std::isfinite(c.cx) &&
+                      std::isfinite(c.cy) && c.R.allFinite() && c.t.allFinite();
+  if (c.width <= 0 || c.height <= 0 || !(c.fx > 0) || !(c.fy > 0) || !finite)
     return invalid(path + ": bad camera (" + std::to_string(c.width) + "x" +
-                   std::to_string(c.height) + ")");
+                   std::to_string(c.height) + ", fx " + std::to_string(c.fx) + ", fy " +
+                   std::to_string(c.fy) + ", cx " + std::to_string(c.cx) + ", cy " +
+                   std::to_string(c.cy) + (c.R.allFinite() && c.t.allFinite() ? "" : ", pose") +
+                   (finite ? ")" : ": not finite)"));
   // The file may be a downscaled copy (images_8 for a 4032-wide model), but not another aspect.
   const double sx = double(w0) / c.width, sy = double(h0) / c.height;
   if (std::abs(sx / sy - 1.0) > 0.01)
     return invalid(path + " is " + std::to_string(w0) + "x" + std::to_string(h0) +
                    " but its camera is " + std::to_string(c.width) + "x" +
                    std::to_string(c.height) + " (different aspect ratio)");
+  return OkStatus();
+}
+
+// One view: its image decoded (or only sized), its camera resolved and resized.
+Status load_view(Pending& p, const DatasetOptions& o, View& view) {
+  int w0 = 0, h0 = 0;
+  Image im;
+  if (o.load_images) {
+    CRPGS_ASSIGN_OR_RETURN(im, load_image(p.path));
+    w0 = im.width, h0 = im.height;
+  } else {
+    CRPGS_ASSIGN_OR_RETURN(const ImageInfo info, read_image_info(p.path));
+    w0 = info.width, h0 = info.height;
+  }
+  CRPGS_RETURN_IF_ERROR(resolve_camera(p, w0, h0, p.path));
+  int w, h;
+  target_size(w0, h0, o, w, h);
+  if (o.load_images) {
+    im = composite_rgba(im, o.background.data());  // before resampling: average what is seen
+    view.image = resample(std::move(im), o);
+  }
+  view.camera = p.camera.resized(w, h);
   return OkStatus();
 }
 
@@ -406,34 +442,11 @@ Status load_views(std::vector<Pending>& pending, const DatasetOptions& o,
   std::atomic<size_t> next{0};
   auto work = [&]() {
     for (size_t i = next++; i < pending.size(); i = next++) {
-      Pending& p = pending[i];
-      int w0 = 0, h0 = 0;
-      Image im;
-      if (o.load_images) {
-        auto loaded = load_image(p.path);
-        if (!loaded.ok()) {
-          errors[i] = loaded.status();
-          continue;
-        }
-        im = std::move(loaded).value();
-        w0 = im.width, h0 = im.height;
-      } else {
-        auto info = read_image_info(p.path);
-        if (!info.ok()) {
-          errors[i] = info.status();
-          continue;
-        }
-        w0 = info->width, h0 = info->height;
+      try {
+        errors[i] = load_view(pending[i], o, views[i]);
+      } catch (const std::exception& e) {  // e.g. bad_alloc: in a worker it would terminate
+        errors[i] = Status(StatusCode::kIoError, pending[i].path + ": " + e.what());
       }
-      errors[i] = resolve_camera(p, w0, h0, p.path);
-      if (!errors[i].ok()) continue;
-      int w, h;
-      target_size(w0, h0, o, w, h);
-      if (o.load_images) {
-        im = composite_rgba(im, o.background.data());  // before resampling: average what is seen
-        views[i].image = resample(std::move(im), o);
-      }
-      views[i].camera = p.camera.resized(w, h);
     }
   };
   const int n_threads = std::max(1, std::min<int>(o.threads, int(pending.size())));

@@ -66,8 +66,12 @@ StatusOr<Image> load_image(const std::string& path) {
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) return Status(StatusCode::kNotFound, "image not found: " + path);
   Image im;
-  const bool is16 = stbi_is_16_bit_from_file(f.get()) != 0;
   int w = 0, h = 0, c = 0;
+  if (stbi_info_from_file(f.get(), &w, &h, &c) && int64_t(w) * h > kMaxImagePixels)
+    return Status(StatusCode::kIoError, path + " declares " + std::to_string(w) + "x" +
+                                            std::to_string(h) + " pixels, more than the limit of " +
+                                            std::to_string(kMaxImagePixels));
+  const bool is16 = stbi_is_16_bit_from_file(f.get()) != 0;
   if (is16) {
     stbi_us* data = stbi_load_from_file_16(f.get(), &w, &h, &c, 0);
     if (!data)

@@ -1,7 +1,9 @@
 /// @file json.cpp
 #include "io/json.h"
 
+#include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -66,9 +68,15 @@ class Parser {
     if (literal("null")) return OkStatus();
     if (ch == '-' || (ch >= '0' && ch <= '9')) {
       const char* begin = s_.c_str() + pos_;
+      // JSON's grammar only (strtod also takes inf, nan and hex), and a finite value.
+      const char* p = begin + (ch == '-' ? 1 : 0);
+      if (!(*p >= '0' && *p <= '9')) return error("bad number");
+      for (const char* q = p; *q && !std::strchr(",]}\t\n\r ", *q); ++q)
+        if (!std::strchr("0123456789.eE+-", *q)) return error("bad number");
       char* end = nullptr;
       out.number = std::strtod(begin, &end);
       if (end == begin) return error("bad number");
+      if (!std::isfinite(out.number)) return error("number out of range");
       out.type = JsonValue::Type::kNumber;
       pos_ += size_t(end - begin);
       return OkStatus();

@@ -5,6 +5,7 @@
 
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 namespace crpgs::io {
@@ -82,6 +83,9 @@ StatusOr<NpyArray> parse_npy(const std::string& bytes, const std::string& path) 
     const long long d = std::atoll(dim.c_str());
     if (d < 0) return bad(path, "shape " + shape);
     a.shape.push_back(d);
+    // More data than any file holds, checked before count * item can overflow.
+    if (d > 0 && count > std::numeric_limits<size_t>::max() / item / size_t(d))
+      return bad(path, "shape " + shape + " is too large");
     count *= size_t(d);
   }
   if (bytes.size() - offset < count * item)

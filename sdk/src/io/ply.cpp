@@ -3,6 +3,7 @@
 #include "crpgs/ply.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <map>
 #include <sstream>
@@ -290,7 +291,9 @@ StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::s
   if (!vertex) return bad(name, "no vertex element");
   if (vertex->has_list) return bad(name, "the vertex element has list properties");
   std::map<std::string, const Property*> by_name;
-  for (const auto& p : vertex->props) by_name[p.name] = &p;
+  for (const auto& p : vertex->props)
+    if (!by_name.emplace(p.name, &p).second)
+      return bad(name, "vertex property '" + p.name + "' appears twice");
   int rest = 0;
   while (by_name.count("f_rest_" + std::to_string(rest))) ++rest;
   int degree = -1;
@@ -322,18 +325,33 @@ StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::s
   g.log_scales.resize(3 * n);
   g.rotations.resize(4 * n);
   std::vector<float> row(cols.size());
+  size_t kept = 0;
   for (size_t i = 0; i < n; ++i) {
     const uint8_t* v = data + offset + i * vertex->stride;
-    for (size_t c = 0; c < cols.size(); ++c)
+    bool finite = true;
+    for (size_t c = 0; c < cols.size(); ++c) {
       row[c] = read_scalar(cols[c]->type, v + cols[c]->offset);
+      finite = finite && std::isfinite(row[c]);
+    }
+    if (!finite) {  // e.g. a Gaussian that diverged in training: it would render as nothing
+      ++g.dropped_non_finite;
+      continue;
+    }
     const float* r = row.data();
-    std::copy(r, r + 3, &g.means[3 * i]);
-    std::copy(r + 3, r + 6, &g.sh_dc[3 * i]);
-    std::copy(r + 6, r + 6 + nr, g.sh_rest.data() + nr * i);
-    g.opacity[i] = r[6 + nr];
-    std::copy(r + 7 + nr, r + 10 + nr, &g.log_scales[3 * i]);
-    std::copy(r + 10 + nr, r + 14 + nr, &g.rotations[4 * i]);
+    const size_t k = kept++;
+    std::copy(r, r + 3, &g.means[3 * k]);
+    std::copy(r + 3, r + 6, &g.sh_dc[3 * k]);
+    std::copy(r + 6, r + 6 + nr, g.sh_rest.data() + nr * k);
+    g.opacity[k] = r[6 + nr];
+    std::copy(r + 7 + nr, r + 10 + nr, &g.log_scales[3 * k]);
+    std::copy(r + 10 + nr, r + 14 + nr, &g.rotations[4 * k]);
   }
+  g.means.resize(3 * kept);
+  g.sh_dc.resize(3 * kept);
+  g.sh_rest.resize(nr * kept);
+  g.opacity.resize(kept);
+  g.log_scales.resize(3 * kept);
+  g.rotations.resize(4 * kept);
   return g;
 }
 
