@@ -40,6 +40,8 @@ struct PlyGaussians {
   size_t dropped_non_finite = 0;
 
   size_t size() const { return opacity.size(); }
+  /// Sizes every array for n Gaussians of sh_degree (new values 0; existing ones kept).
+  void resize(size_t n);
   /// Checks that every array matches size() and the degree.
   Status check() const;
   /// Colour of Gaussian i seen from direction (x, y, z) (unit): max(0.5 + SH, 0) per channel.

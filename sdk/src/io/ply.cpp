@@ -147,6 +147,15 @@ void sh_basis(int degree, float x, float y, float z, float* out) {
   out[15] = kC3[6] * x * (xx - 3.f * yy);
 }
 
+void PlyGaussians::resize(size_t n) {
+  means.resize(3 * n);
+  sh_dc.resize(3 * n);
+  sh_rest.resize(size_t(3 * (sh_coeff_count(sh_degree) - 1)) * n);
+  opacity.resize(n);
+  log_scales.resize(3 * n);
+  rotations.resize(4 * n);
+}
+
 Status PlyGaussians::check() const {
   const size_t n = size();
   if (sh_degree < 0 || sh_degree > 3)
@@ -318,12 +327,7 @@ StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::s
   PlyGaussians g;
   g.sh_degree = degree;
   const size_t nr = size_t(rest);
-  g.means.resize(3 * n);
-  g.sh_dc.resize(3 * n);
-  g.sh_rest.resize(nr * n);
-  g.opacity.resize(n);
-  g.log_scales.resize(3 * n);
-  g.rotations.resize(4 * n);
+  g.resize(n);
   std::vector<float> row(cols.size());
   size_t kept = 0;
   for (size_t i = 0; i < n; ++i) {
@@ -346,12 +350,7 @@ StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::s
     std::copy(r + 7 + nr, r + 10 + nr, &g.log_scales[3 * k]);
     std::copy(r + 10 + nr, r + 14 + nr, &g.rotations[4 * k]);
   }
-  g.means.resize(3 * kept);
-  g.sh_dc.resize(3 * kept);
-  g.sh_rest.resize(nr * kept);
-  g.opacity.resize(kept);
-  g.log_scales.resize(3 * kept);
-  g.rotations.resize(4 * kept);
+  g.resize(kept);
   return g;
 }
 
