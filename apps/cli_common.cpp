@@ -21,8 +21,12 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
   StatusOr<Config> cfg = path.empty() ? Config::from_string(fallback_yaml, "<built-in config>")
                                       : Config::load_file(path);
   if (!cfg.ok()) return cfg.status();
-  // load_file made a file's relative dataset path absolute; --set paths stay relative to cwd.
+  // load_file made a file's relative dataset path absolute; a --set one is relative to the
+  // working directory, and made absolute here so that a run's saved config keeps working.
   for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(cfg->apply_override(s));
+  std::error_code ec;
+  CRPGS_RETURN_IF_ERROR(
+      make_dataset_path_absolute(cfg.value(), std::filesystem::current_path(ec).string()));
   return cfg->resolve(registry);
 }
 
@@ -89,10 +93,13 @@ StatusOr<Config> setup_config(const Config& resolved, const GlobalOptions& g,
   }
   if (!rast) CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.type=cpu"));
   for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(c.apply_override(s));
+  std::error_code ec;
+  CRPGS_RETURN_IF_ERROR(make_dataset_path_absolute(c, fs::current_path(ec).string()));
   return c.resolve(r);
 }
 
-/// Rendering needs the cameras (and ground truth) of the dataset the model was trained on.
+}  // namespace
+
 Status check_dataset(const Config& c) {
   const YAML::Node ds = c.section("dataset");
   if (!ds || !ds.IsMap()) return OkStatus();
@@ -104,8 +111,6 @@ Status check_dataset(const Config& c) {
                     " (dataset.path of its config); rendering needs its cameras. Point to a copy "
                     "with --set dataset.path=DIR");
 }
-
-}  // namespace
 
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads) {

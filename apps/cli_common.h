@@ -41,6 +41,10 @@ void print_eval(const EvalResult& r);
 /// Prints a Status to stderr as "crpgs: error: ..." and returns exit code 1.
 int report_error(const Status& st);
 
+/// Rendering needs the cameras (and ground truth) of the dataset the model was trained on:
+/// kNotFound naming dataset.path, and how to point elsewhere (--set dataset.path=DIR).
+Status check_dataset(const Config& c);
+
 /// setup_training, then the dataset's warnings (ignored lens distortion, no SfM points, ...) on
 /// stderr: the SDK only collects them.
 StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,

@@ -19,13 +19,6 @@ namespace crpgs::cli {
 namespace {
 namespace fs = std::filesystem;
 
-Image to_image(const torch::Tensor& img) {  // [H, W, C] float
-  const auto t = img.detach().to(torch::kFloat).contiguous();
-  Image im = Image::zeros(int(t.size(1)), int(t.size(0)), int(t.size(2)));
-  std::memcpy(im.pixels.data(), t.data_ptr<float>(), im.pixels.size() * sizeof(float));
-  return im;
-}
-
 /// Renders the .ply Gaussians on `views` and measures them as `crpgs eval` does (8-bit PNG
 /// round trip); PNGs go to png_dir when set.
 StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterizer,
@@ -44,7 +37,7 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
     const auto t0 = std::chrono::steady_clock::now();
     auto img = rasterizer.render(ply_to_batch(ply, v.camera), v.camera, settings).image;
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    const Image render = quantize_8bit(to_image(img));
+    const Image render = quantize_8bit(tensor_to_image(img));
     CRPGS_ASSIGN_OR_RETURN(ImageMetrics m, compare_images(render, quantize_8bit(v.image)));
     ViewMetrics vm;
     vm.name = v.camera.name;

@@ -97,8 +97,9 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   const std::string config_path = (fs::path(out_dir) / "config.yaml").string();
   const std::string model_path = (fs::path(out_dir) / kDecodedModelFile).string();
   t0 = Clock::now();
-  Status st = dec->config.save(config_path);
-  if (st.ok()) st = write_decoded(model_path, dec.value());
+  // The model first: a directory with config.yaml alone would pass for a training run.
+  Status st = write_decoded(model_path, dec.value());
+  if (st.ok()) st = dec->config.save(config_path);
   if (!st.ok()) return report_error(st);
   const double write_s = seconds_since(t0);
   const auto& m = dec->model;
@@ -114,13 +115,6 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
               model_path.c_str(), static_cast<unsigned long long>(fs::file_size(model_path, ec)),
               write_s);
   return 0;
-}
-
-Image to_image(const torch::Tensor& img) {  // [H, W, C] float
-  const auto t = img.detach().to(torch::kFloat).contiguous();
-  Image im = Image::zeros(int(t.size(1)), int(t.size(0)), int(t.size(2)));
-  std::memcpy(im.pixels.data(), t.data_ptr<float>(), im.pixels.size() * sizeof(float));
-  return im;
 }
 
 int render_command(const GlobalOptions& g, const std::string& source, const std::string& out_dir,
@@ -155,12 +149,15 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
     for (size_t i = 0; i < views->size(); ++i) {
       const View& v = (*views)[i];
       const auto t0 = Clock::now();
-      NeuralGaussians ng = model.generate(v.camera, -1, src->setup->rasterizer(), settings, false);
+      // A train view has its own appearance embedding (as in training); others get the mean.
+      const int camera_index = split == "train" ? int(i) : -1;
+      NeuralGaussians ng =
+          model.generate(v.camera, camera_index, src->setup->rasterizer(), settings, false);
       auto img = src->setup->rasterizer().render(ng.batch, v.camera, settings).image;
       const double s = seconds_since(t0);
       total_s += s;
       ++count;
-      const Image render = quantize_8bit(to_image(img));
+      const Image render = quantize_8bit(tensor_to_image(img));
       std::snprintf(name, sizeof name, "%s_%05zu.png", split.c_str(), i);
       Status st = save_png(render, (fs::path(out_dir) / name).string());
       if (!st.ok()) return report_error(st);

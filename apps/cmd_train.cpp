@@ -231,12 +231,16 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   eval->add_option("RUN", run_dir, "directory written by `crpgs train`, or a .crpgs bitstream")
       ->required();
   eval->add_option("-o,--output", png_dir, "where to write the PNGs (default RUN_DIR/renders)");
+  eval->add_option("--set", g.sets,
+                   "override a key of the model's config (e.g. dataset.path=DIR when the dataset "
+                   "has moved)");
   eval->callback([&g] {
     if (fs::is_regular_file(run_dir))
       throw CLI::RuntimeError(eval_bitstream_file(g, run_dir, png_dir));
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(run_dir + "/config.yaml", g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
+    if (Status st = check_dataset(cfg.value()); !st.ok()) throw CLI::RuntimeError(report_error(st));
     auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
     if (!trainer.ok()) throw CLI::RuntimeError(report_error(trainer.status()));
     if (trainer.value()->iteration() == 0)

@@ -1,6 +1,7 @@
 // The CLI's answer to a misspelt command or option: what does not exist, and the nearest that does.
 #include <gtest/gtest.h>
 
+#include <filesystem>
 #include <string>
 
 #include "cli_output.h"
@@ -39,6 +40,26 @@ TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
   out = crpgs_output("train --help", &rc);
   EXPECT_EQ(rc, 0);
   EXPECT_EQ(out.find("unknown"), std::string::npos) << out;
+  // eval takes --set (e.g. dataset.path=DIR, as its missing-dataset message says).
+  out = crpgs_output("eval /nonexistent_run --set dataset.path=x", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_EQ(out.find("unknown option"), std::string::npos) << out;
+#endif
+}
+
+// A --set dataset path is relative to the working directory and saved absolute, so a run's
+// config.yaml (and the bitstream's config) still find the dataset from anywhere.
+TEST(CliConfig, ASetDatasetPathIsMadeAbsolute) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "the crpgs executable is not part of this build (CRPGS_BUILD_APPS=OFF)";
+#else
+  int rc = 0;
+  const std::string out = crpgs_output(std::string("config check '") + CRPGS_SOURCE_DIR +
+                                           "/configs/fern.yaml' --set dataset.path=rel/fern",
+                                       &rc);
+  EXPECT_EQ(rc, 0) << out;
+  const std::string want = (std::filesystem::current_path() / "rel/fern").string();
+  EXPECT_NE(out.find("path: " + want + "\n"), std::string::npos) << want << "\n" << out;
 #endif
 }
 

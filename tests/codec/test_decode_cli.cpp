@@ -30,6 +30,7 @@ dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, syntheti
 context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
           n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
 entropy: {type: gaussian}
+scene: {appearance_dim: 4}
 rate: {lambda: 0.002}
 rasterizer: {type: cpu, threads: 1}
 train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
@@ -154,6 +155,30 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
       EXPECT_EQ(other->width, ref->width);
       EXPECT_TRUE(other->pixels == ref->pixels) << n << " differs: " << renders[i].first;
     }
+  }
+
+  // 3b. A train view renders with its own appearance embedding, as in training (not the mean).
+  const std::string train_out = (dir / "render_train").string();
+  ASSERT_EQ(run_cli("render '" + (dir / "run").string() + "' -o '" + train_out +
+                        "' --views train --threads 1",
+                    dir / "log.txt", &log),
+            0)
+      << log;
+  {
+    torch::NoGradGuard ng;
+    t.model().set_quantized(q);
+    RenderSettings st;
+    st.background = t.model().options().effects.background;
+    const View& v = t.dataset().train[1];
+    auto render = [&](int camera_index) {
+      auto g = t.model().generate(v.camera, camera_index, t.rasterizer(), st, false);
+      return quantize_8bit(tensor_to_image(t.rasterizer().render(g.batch, v.camera, st).image));
+    };
+    const Image own = render(1), mean = render(-1);
+    ASSERT_FALSE(own.pixels == mean.pixels) << "the embedding makes no difference here";
+    auto cli = load_image((fs::path(train_out) / "train_00001.png").string());
+    ASSERT_TRUE(cli.ok()) << cli.status().to_string();
+    EXPECT_TRUE(cli->pixels == own.pixels);
   }
 
   // 4. A model whose dataset is absent is refused with a message that says so.

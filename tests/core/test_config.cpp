@@ -179,6 +179,18 @@ TEST(Config, SetOverridesAnyKeyAndReportsItsOrigin) {
   EXPECT_FALSE(bad->apply_override("dataset.path.deeper=1").ok());  // path is a scalar
 }
 
+TEST(Config, RelativeDatasetPathsAreMadeAbsoluteAgainstTheGivenBase) {
+  auto cfg = Config::from_string("dataset: {path: data/../data/fern}\n", "t.yaml");
+  ASSERT_TRUE(cfg.ok());
+  ASSERT_TRUE(make_dataset_path_absolute(cfg.value(), "/work/here").ok());
+  EXPECT_EQ(cfg->section("dataset")["path"].as<std::string>(), "/work/here/data/fern");
+  ASSERT_TRUE(make_dataset_path_absolute(cfg.value(), "/elsewhere").ok());  // absolute: kept
+  EXPECT_EQ(cfg->section("dataset")["path"].as<std::string>(), "/work/here/data/fern");
+  auto none = Config::from_string("train: {threads: 1}\n", "t.yaml");
+  ASSERT_TRUE(make_dataset_path_absolute(none.value(), "/x").ok());
+  EXPECT_FALSE(none->section("dataset").IsDefined());
+}
+
 // A directory of config files for one test: name -> text.
 std::string write_configs(const std::string& test,
                           const std::vector<std::pair<std::string, std::string>>& files) {

@@ -69,4 +69,9 @@ class Config {
   SourceRef src_;
 };
 
+/// Makes a relative dataset.path absolute against `base` (the working directory for a path given
+/// with --set or a sweep file), so the copy saved in a run directory, and the config a bitstream
+/// carries, stay valid from anywhere. Absent or absolute paths are left alone.
+Status make_dataset_path_absolute(Config& cfg, const std::string& base);
+
 }  // namespace crpgs

@@ -22,6 +22,10 @@
 
 namespace crpgs {
 
+/// An image as a [H, W, C] float tensor (a copy), and back (values clamped to [0, 1]).
+torch::Tensor image_to_tensor(const Image& im);
+Image tensor_to_image(const torch::Tensor& t);
+
 /// Phase boundaries in iterations (method.md §1.4, §2.3). Densification statistics run for
 /// start_stat < it < update_until; anchors are adjusted when it > update_from and
 /// it % update_interval == 0, except for pause_from <= it < pause_until.

@@ -316,6 +316,14 @@ std::string Config::dump() const {
   return std::string(e.c_str()) + "\n";
 }
 
+Status make_dataset_path_absolute(Config& cfg, const std::string& base) {
+  const YAML::Node ds = cfg.root()["dataset"];
+  if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
+  const std::string p = ds["path"].Scalar();
+  if (p.empty() || fs::path(p).is_absolute()) return OkStatus();
+  return cfg.apply_override("dataset.path=" + (fs::path(base) / p).lexically_normal().string());
+}
+
 Status Config::save(const std::string& path) const {
   return write_file_atomic(path, dump());
 }

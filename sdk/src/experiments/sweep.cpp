@@ -239,22 +239,13 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
   return runs;
 }
 
-/// Makes dataset.path absolute against `base`, so the copy in the run directory stays valid.
-Status absolute_dataset_path(Config& cfg, const fs::path& base) {
-  const YAML::Node ds = cfg.root()["dataset"];
-  if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
-  const std::string p = ds["path"].Scalar();
-  if (p.empty() || fs::path(p).is_absolute()) return OkStatus();
-  return cfg.apply_override("dataset.path=" + (base / p).lexically_normal().string());
-}
-
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
   // As `crpgs train`: load_file makes a config file's dataset path absolute against that file;
   // one set by the sweep file (like --set) is relative to the working directory.
   CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
   for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
   std::error_code ec;
-  CRPGS_RETURN_IF_ERROR(absolute_dataset_path(cfg, fs::current_path(ec)));
+  CRPGS_RETURN_IF_ERROR(make_dataset_path_absolute(cfg, fs::current_path(ec).string()));
   if (!registry) return cfg;
   auto resolved = cfg.resolve(*registry);
   if (!resolved.ok())

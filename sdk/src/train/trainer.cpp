@@ -25,20 +25,13 @@
 
 namespace crpgs {
 
-namespace {
-
-using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t) {
-  return std::chrono::duration<double>(Clock::now() - t).count();
-}
-
-torch::Tensor image_to_tensor(const Image& im) {  // -> [H, W, C] float
+torch::Tensor image_to_tensor(const Image& im) {
   return torch::from_blob(const_cast<float*>(im.pixels.data()), {im.height, im.width, im.channels},
                           torch::kFloat)
       .clone();
 }
 
-Image tensor_to_image(const torch::Tensor& t) {  // [H, W, C]
+Image tensor_to_image(const torch::Tensor& t) {
   auto c = t.detach().to(torch::kFloat).clamp(0, 1).contiguous();
   Image im;
   im.height = int(c.size(0));
@@ -46,6 +39,13 @@ Image tensor_to_image(const torch::Tensor& t) {  // [H, W, C]
   im.channels = int(c.size(2));
   im.pixels.assign(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
   return im;
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
 // Keys in a torch archive cannot contain dots.
