@@ -801,7 +801,10 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   // 2. Threads (libtorch starts with one here) and the allocator.
   set_compute_threads(train_options.threads);
   keep_freed_memory_in_heap();
-  // 3. Components: rasterizer and feature model from the registry.
+  // 3. Components: rasterizer and feature model from the registry. They draw their initial
+  // parameters (hash tables, MLPs) from libtorch's global generator: train.seed seeds it, so the
+  // seed varies every random initial value, not only the anchor model's.
+  torch::manual_seed(train_options.seed);
   crpgs_create_args args = create_args_for(resolved);
   auto block = [&](const char* key, const char* type) {
     YAML::Node b = resolved.section(key);
