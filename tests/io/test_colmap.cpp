@@ -60,18 +60,23 @@ StatusOr<Dataset> load(const fs::path& root, DatasetOptions o = {}) {
   return load_dataset(o);
 }
 
+// A hand-written text model in root/sparse/0.
+void write_text_model(const fs::path& root, const std::string& cameras, const std::string& images) {
+  fs::create_directories(root / "sparse" / "0");
+  test::write_bytes(root / "sparse/0/cameras.txt", cameras);
+  test::write_bytes(root / "sparse/0/images.txt", images);
+}
+
 TEST(Colmap, HandWrittenTextModelProjectsToTheKnownPixel) {
   const fs::path root = test::fresh_dir();
-  fs::create_directories(root / "sparse" / "0");
-  test::write_bytes(root / "sparse/0/cameras.txt", "# comment\n1 PINHOLE 64 48 50 52 31.5 24.25\n");
   // Image 1: identity rotation, t = (0.1, -0.2, 2). Image 2: 90° about y (qw = qy = √½), t =
   // (0,0,2).
-  test::write_bytes(root / "sparse/0/images.txt",
-                    "# IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME\n"
-                    "1 1 0 0 0 0.1 -0.2 2 1 one.png\n"
-                    "\n"
-                    "2 0.70710678118654752 0 0.70710678118654752 0 0 0 2 1 two.png\n"
-                    "10 20 1\n");
+  write_text_model(root, "# comment\n1 PINHOLE 64 48 50 52 31.5 24.25\n",
+                   "# IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME\n"
+                   "1 1 0 0 0 0.1 -0.2 2 1 one.png\n"
+                   "\n"
+                   "2 0.70710678118654752 0 0.70710678118654752 0 0 0 2 1 two.png\n"
+                   "10 20 1\n");
   test::write_bytes(root / "sparse/0/points3D.txt", "1 0.3 0.4 1.0 255 128 0 0.1 2 0\n");
   fs::create_directories(root / "images");
   write_images(root / "images", {"one.png", "two.png"}, 64, 48);
@@ -111,18 +116,16 @@ TEST(Colmap, HandWrittenTextModelProjectsToTheKnownPixel) {
 
 TEST(Colmap, TextModelsWithoutPointsLinesOrWithAbsurdSizesAreRefused) {
   const fs::path root = test::fresh_dir();
-  fs::create_directories(root / "sparse" / "0");
-  test::write_bytes(root / "sparse/0/cameras.txt", "1 PINHOLE 64 48 50 52 31.5 24.25\n");
   // No POINTS2D line after each image line: every other image would be read as keypoints.
-  test::write_bytes(root / "sparse/0/images.txt",
-                    "1 1 0 0 0 0.1 -0.2 2 1 one.png\n"
-                    "2 1 0 0 0 0.2 -0.2 2 1 two.png\n");
+  write_text_model(root, "1 PINHOLE 64 48 50 52 31.5 24.25\n",
+                   "1 1 0 0 0 0.1 -0.2 2 1 one.png\n"
+                   "2 1 0 0 0 0.2 -0.2 2 1 two.png\n");
   auto m = io::read_colmap_text((root / "sparse/0").string());
   ASSERT_FALSE(m.ok());
   EXPECT_TRUE(contains(m.status().message(), "POINTS2D line")) << m.status().message();
   // A width beyond int: it used to wrap to 640.
-  test::write_bytes(root / "sparse/0/images.txt", "1 1 0 0 0 0.1 -0.2 2 1 one.png\n\n");
-  test::write_bytes(root / "sparse/0/cameras.txt", "1 PINHOLE 4294967936 48 50 52 31.5 24.25\n");
+  write_text_model(root, "1 PINHOLE 4294967936 48 50 52 31.5 24.25\n",
+                   "1 1 0 0 0 0.1 -0.2 2 1 one.png\n\n");
   fs::create_directories(root / "images");
   write_images(root / "images", {"one.png"}, 64, 48);
   auto ds = load(root);
