@@ -217,15 +217,17 @@ struct AnchorModel::Impl {
     g.v = g.v.index_select(0, idx);
   }
   int64_t grow(const torch::Tensor& grads, const torch::Tensor& offset_mask, torch::Generator& gen);
-  torch::Tensor leaf_means(const torch::Tensor& rows, const torch::Tensor& base_mu) const;
+  torch::Tensor leaf_means(const torch::Tensor& rows, const torch::Tensor& base_mu,
+                           float feature_mean) const;
 };
 
 // μ_f of the anchors `rows` [S] with the leaf model where the anchor is a leaf of an active root
 // (method.md §7.9-§7.10): f̂_root = the codec's value of f (code_symbols·Q) through a
 // straight-through estimator with Q detached; the root's Q and position are computed on demand
-// (it need not be visible).
-torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
-                                            const torch::Tensor& base_mu) const {
+// (it need not be visible). feature_mean: serial_mean of every anchor's features, the centre of
+// the codec's clamp.
+torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows, const torch::Tensor& base_mu,
+                                            float feature_mean) const {
   auto root = links.index_select(0, rows);  // [S]
   auto is_leaf = root >= 0;
   if (opt.use_offset_mask) {  // only the roots' masks: this runs every rate-phase iteration
@@ -246,7 +248,7 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows,
   auto f_root = p(i_feat).index_select(0, roots);
   // The root's feature as the decoder will have it (quantize()): clamped about the features'
   // mean, 0 where the step is saturated.
-  const auto decoded = code_symbols(f_root, serial_mean(p(i_feat)), q_root) * q_root;
+  const auto decoded = code_symbols(f_root, feature_mean, q_root) * q_root;
   auto f_hat = decoded + (f_root - f_root.detach());  // exactly `decoded`, gradient 1
   const LeafMlp mlp{p(i_leaf), p(i_leaf + 1), p(i_leaf + 2), p(i_leaf + 3), link_opt.residual};
   auto mu_leaf =
@@ -609,7 +611,8 @@ torch::Tensor AnchorModel::links() const {
 }
 torch::Tensor AnchorModel::feature_means(const torch::Tensor& rows,
                                          const torch::Tensor& base_mu) const {
-  return impl_->links.defined() ? impl_->leaf_means(rows, base_mu) : base_mu;
+  const Impl& m = *impl_;
+  return m.links.defined() ? m.leaf_means(rows, base_mu, serial_mean(m.p(m.i_feat))) : base_mu;
 }
 LeafMlp AnchorModel::leaf_mlp() const {
   const Impl& m = *impl_;
@@ -860,8 +863,12 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
         // Means and scales of the subset only; its steps are those its noise used.
         const EntropyParams ep = split_entropy_params(ctx.rows(chosen), layout, m.rate.q0);
         auto q_f = sel(out.q_f), q_s = sel(out.q_s), q_o = sel(out.q_o);
-        auto mu_f = feature_means(idx.index_select(0, chosen), ep.mu_f);
-        auto b_f = bits(sel(feat_c), serial_mean(m.p(m.i_feat)), mu_f, ep.sigma_f, q_f);
+        // One pass over every anchor's features: the leaf model's clamp and the rate share it.
+        const float feat_mean = serial_mean(m.p(m.i_feat));
+        auto mu_f = m.links.defined()
+                        ? m.leaf_means(idx.index_select(0, chosen), ep.mu_f, feat_mean)
+                        : ep.mu_f;
+        auto b_f = bits(sel(feat_c), feat_mean, mu_f, ep.sigma_f, q_f);
         auto b_s = bits(sel(scal_v), serial_mean(torch::exp(m.p(m.i_scaling).detach())), ep.mu_s,
                         ep.sigma_s, q_s);
         auto b_o = bits(sel(offs_v).reshape({S, 3 * K}), serial_mean(m.p(m.i_offset)), ep.mu_o,
