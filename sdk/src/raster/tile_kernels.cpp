@@ -495,14 +495,12 @@ double alpha_extent(const float* con, float op, float& ex, float& ey) {
   // sqrt(Q * (K^-1)_xx). A small margin covers float rounding in the pixel loop.
   const double Q = 2.0 * std::log(255.0 * double(op));
   const double det = double(con[0]) * con[2] - double(con[1]) * con[1];
-  if (!(Q > 0)) {
+  if (!(Q > 0) || !std::isfinite(det)) {  // too faint, or a non-finite conic: draws nothing
     ex = ey = -1.f;
-  } else if (!(det > 0) && std::isfinite(det)) {
+  } else if (!(det > 0)) {
     // A needle too long for float conics (σ ≳ 3000 px): a c − b² of the stored floats is exact
     // here and not positive, so the loop's test bounds no ellipse; the radius box does.
     ex = ey = kUnboundedExtent;
-  } else if (!std::isfinite(det)) {
-    ex = ey = -1.f;  // a non-finite conic draws nothing
   } else {
     ex = float(std::sqrt(Q * con[2] / det) * (1 + 1e-4) + 1e-3);
     ey = float(std::sqrt(Q * con[0] / det) * (1 + 1e-4) + 1e-3);
