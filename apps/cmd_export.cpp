@@ -57,7 +57,7 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
 }
 
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
-                   int degree, int directions, int threads) {
+                   int degree, int directions, double view_weight, int threads) {
   ComponentRegistry r = load_registry(g);
   auto src = load_model_source(g, r, source, resolve_threads(threads));
   if (!src.ok()) return report_error(src.status());
@@ -66,6 +66,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   BakeOptions opt;
   opt.sh_degree = degree;
   opt.directions = directions;
+  opt.view_weight = view_weight;
   for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
   if (opt.camera_centers.empty())
     for (const auto& v : ds.test) opt.camera_centers.push_back(v.camera.center());
@@ -77,9 +78,11 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   const double bake_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::error_code ec;
-  std::printf("wrote %s: %zu Gaussians, SH degree %d (%d directions), %llu bytes, %.2f s\n",
-              out.c_str(), baked->size(), degree, directions,
-              static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
+  std::printf(
+      "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), %llu bytes, "
+      "%.2f s\n",
+      out.c_str(), baked->size(), degree, directions, view_weight,
+      static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
   if (ds.test.empty()) return 0;
   // Read the file back: what is measured is what was written.
   auto back = read_ply(out);
@@ -138,6 +141,7 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
 void add_export_commands(CLI::App& app, GlobalOptions& g) {
   static std::string source, out, ply, config, png_dir;
   static int degree = 3, directions = 96, threads = 0;
+  static double view_weight = BakeOptions{}.view_weight;
   auto* ex = app.add_subcommand(
       "export",
       "Bake an anchor model (a .crpgs file or a training run) into a standard 3DGS .ply (INRIA "
@@ -146,12 +150,17 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
   ex->add_option("SOURCE", source, ".crpgs file or training run directory")->required();
   ex->add_option("-o,--output", out, "the .ply to write")->required();
   ex->add_option("--sh-degree", degree, "SH degree of the colours (0..3)")->check(CLI::Range(0, 3));
-  ex->add_option("--directions", directions, "view directions the SH are fitted on")
+  ex->add_option("--directions", directions, "directions of the sphere the SH are also fitted on")
       ->check(CLI::Range(16, 4096));
+  ex->add_option("--view-weight", view_weight,
+                 "share of the SH fit on the training cameras' own views (the rest on the sphere "
+                 "of directions); 0 fits the sphere alone")
+      ->check(CLI::Range(0.0, 0.99));
   ex->add_option("--threads", threads, "CPU threads; 0 = all cores")->check(CLI::NonNegativeNumber);
   ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
   ex->callback([&g] {
-    throw CLI::RuntimeError(export_command(g, source, out, degree, directions, threads));
+    throw CLI::RuntimeError(
+        export_command(g, source, out, degree, directions, view_weight, threads));
   });
 
   auto* im = app.add_subcommand(

@@ -7,12 +7,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 
 #include "cli_test_util.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
+#include "crpgs/gaussian_export.h"
 #include "crpgs/image.h"
 #include "crpgs/trainer.h"
 #include "test_registry.h"
@@ -179,6 +181,37 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
     auto cli = load_image((fs::path(train_out) / "train_00001.png").string());
     ASSERT_TRUE(cli.ok()) << cli.status().to_string();
     EXPECT_TRUE(cli->pixels == own.pixels);
+  }
+
+  // 3c. `crpgs export` of the run bakes what bake_gaussians bakes with the options it was given.
+  {
+    const std::string ply = (dir / "scene.ply").string();
+    ASSERT_EQ(run_cli("export '" + (dir / "run").string() + "' -o '" + ply +
+                          "' --sh-degree 1 --view-weight 0.5 --threads 1",
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("view weight 0.50"), std::string::npos) << log;
+    EXPECT_NE(log.find("EXPORTED PSNR"), std::string::npos) << log;
+    auto cli = read_ply(ply);
+    ASSERT_TRUE(cli.ok()) << cli.status().to_string();
+    BakeOptions opt;
+    opt.sh_degree = 1;
+    for (const auto& v : t.dataset().train) opt.camera_centers.push_back(v.camera.center());
+    for (double w : {0.5, 0.0}) {
+      opt.view_weight = w;
+      auto baked = bake_gaussians(t.model(), opt, &q);
+      ASSERT_TRUE(baked.ok()) << baked.status().to_string();
+      ASSERT_EQ(baked->size(), cli->size());
+      EXPECT_EQ(baked->means, cli->means);
+      float diff = 0;
+      for (size_t i = 0; i < cli->sh_rest.size(); ++i)
+        diff = std::max(diff, std::abs(baked->sh_rest[i] - cli->sh_rest[i]));
+      if (w == 0.5)
+        EXPECT_LT(diff, 1e-5f);
+      else
+        EXPECT_GT(diff, 1e-3f) << "the view weight made no difference";
+    }
   }
 
   // 4. A model whose dataset is absent is refused with a message that says so.

@@ -4,6 +4,9 @@
 
 #include <ATen/CPUGeneratorImpl.h>
 
+#include <map>
+#include <set>
+
 #include "crpgs/anchor_model.h"
 #include "crpgs/components.h"
 #include "crpgs/gaussian_export.h"
@@ -46,6 +49,32 @@ TEST(GaussianExport, ShFitIsExactOnAFieldOfTheSameDegree) {
   EXPECT_GT((fit_sh(colors, dirs, 1) - coeffs.narrow(1, 0, 4)).abs().max().item<float>(), 1e-3);
 }
 
+TEST(GaussianExport, WeightedShFitSolvesTheWeightedNormalEquations) {
+  torch::manual_seed(11);
+  const int64_t G = 6, C = 5;
+  auto dirs = fibonacci_directions(40);
+  auto own = torch::randn({G, C, 3});
+  own = own / own.norm(2, 2, true);  // each Gaussian its own directions
+  for (int d : {1, 3}) {
+    // A field of the fit's degree is recovered exactly whatever the weights.
+    const int nb = sh_coeff_count(d);
+    auto coeffs = torch::randn({G, nb, 3}) * 0.3;
+    auto own_basis = sh_basis_matrix(own.reshape({G * C, 3}), d).reshape({G, C, nb});
+    auto sphere_basis = sh_basis_matrix(dirs, d);
+    auto fit = fit_sh({{torch::matmul(sphere_basis, coeffs) + 0.5, sphere_basis, 0.1 / 40},
+                       {torch::matmul(own_basis, coeffs) + 0.5, own_basis, 0.9 / C}});
+    EXPECT_LT((fit - coeffs).abs().max().item<float>(), 2e-5) << "degree " << d;
+  }
+  // Degree 0 is the weighted mean colour: 10% on the sphere's 40 samples, 90% on the own 5.
+  auto on_sphere = torch::rand({G, 40, 3}), on_own = torch::rand({G, C, 3});
+  auto fit =
+      fit_sh({{on_sphere, sh_basis_matrix(dirs, 0), 0.1 / 40},
+              {on_own, sh_basis_matrix(own.reshape({G * C, 3}), 0).reshape({G, C, 1}), 0.9 / C}});
+  auto mean = 0.1 * on_sphere.mean(1) + 0.9 * on_own.mean(1);  // [G, 3]
+  const float y00 = 0.28209479177387814f;
+  EXPECT_LT((fit.select(1, 0) * y00 + 0.5 - mean).abs().max().item<float>(), 1e-5);
+}
+
 struct Scene {
   Dataset ds;
   std::shared_ptr<raster::CpuRasterizer> raster = std::make_shared<raster::CpuRasterizer>(1);
@@ -71,9 +100,10 @@ struct Scene {
     if (!m.ok()) throw StatusError(m.status());
     return std::move(m).value();
   }
-  BakeOptions bake(int degree) const {
+  BakeOptions bake(int degree, double view_weight = BakeOptions{}.view_weight) const {
     BakeOptions b;
     b.sh_degree = degree;
+    b.view_weight = view_weight;
     for (const auto& v : ds.train) b.camera_centers.push_back(v.camera.center());
     return b;
   }
@@ -152,6 +182,50 @@ TEST(GaussianExport, ViewDependentColourIsApproximatedBySh) {
   EXPECT_LT(e3, 0.05);
 }
 
+TEST(GaussianExport, WeightingTheCamerasViewsFitsTheColoursTheySee) {
+  // The sphere-only fit (view weight 0) spends the SH on directions no camera looks from; with
+  // the cameras' own views weighted, the exported colours seen from those cameras come closer to
+  // the model's. Gaussians are matched by their means, which bake and generate compute alike
+  // (random offsets make them distinct: a fresh model's are all 0).
+  Scene s;
+  auto m = s.model(SceneEffects{});
+  torch::NoGradGuard ng;
+  torch::manual_seed(3);
+  m->offsets().copy_(torch::randn(m->offsets().sizes()));
+  RenderSettings rs;
+  for (int degree : {0, 1, 3}) {
+    double err[2] = {0, 0};
+    for (int i = 0; i < 2; ++i) {
+      auto b = bake_gaussians(*m, s.bake(degree, i == 0 ? 0.0 : 0.9));
+      ASSERT_TRUE(b.ok()) << b.status().message();
+      std::map<std::array<float, 3>, int64_t> row;
+      for (size_t g = 0; g < b->size(); ++g)
+        row[{b->means[3 * g], b->means[3 * g + 1], b->means[3 * g + 2]}] = int64_t(g);
+      for (const auto& v : s.ds.train) {
+        auto want = m->generate(v.camera, -1, *s.raster, rs, false).batch;
+        auto got = ply_to_batch(*b, v.camera).colors;
+        auto mu = want.means.contiguous();
+        const float* p = mu.data_ptr<float>();
+        std::vector<int64_t> model_rows, ply_rows;
+        for (int64_t g = 0; g < mu.size(0); ++g) {
+          auto it = row.find({p[3 * g], p[3 * g + 1], p[3 * g + 2]});
+          if (it == row.end()) continue;
+          model_rows.push_back(g);
+          ply_rows.push_back(it->second);
+        }
+        ASSERT_GT(model_rows.size(), b->size() / 2);
+        ASSERT_EQ(std::set<int64_t>(ply_rows.begin(), ply_rows.end()).size(), ply_rows.size());
+        err[i] += (want.colors.index_select(0, torch::tensor(model_rows)) -
+                   got.index_select(0, torch::tensor(ply_rows)))
+                      .pow(2)
+                      .sum()
+                      .item<double>();
+      }
+    }
+    EXPECT_LT(err[1], err[0]) << "degree " << degree;
+  }
+}
+
 TEST(GaussianExport, RefusesBadOptions) {
   Scene s;
   auto m = s.model(SceneEffects{});
@@ -163,6 +237,7 @@ TEST(GaussianExport, RefusesBadOptions) {
   b = s.bake(1);
   b.camera_centers.clear();
   EXPECT_FALSE(bake_gaussians(*m, b).ok());
+  for (double w : {-0.1, 1.0, std::nan("")}) EXPECT_FALSE(bake_gaussians(*m, s.bake(1, w)).ok());
 }
 
 }  // namespace

@@ -8,9 +8,14 @@
 ///  - opacity, scale, rotation (and so which Gaussians exist: opacity > 0) are evaluated at each
 ///    anchor's representative view: direction = normalised mean of the unit directions from the
 ///    given camera centres (the training cameras) to the anchor, distance = mean distance to them;
-///  - colour: per Gaussian, the colour MLP is evaluated at `directions` unit directions of a
-///    Fibonacci sphere with the anchor's representative distance, and SH coefficients of
-///    `sh_degree` are fitted by least squares to (colour - 0.5) (3DGS: colour = 0.5 + SH).
+///  - colour: SH coefficients of `sh_degree` are fitted per Gaussian by weighted least squares
+///    to (colour - 0.5) (3DGS: colour = 0.5 + SH), on two sets of samples of the colour MLP:
+///    each camera's own view (direction and distance from that camera centre to the anchor; the
+///    SH basis at the direction from the centre to the Gaussian, as a renderer evaluates it),
+///    which carries `view_weight` of the total weight, and `directions` unit directions of a
+///    Fibonacci sphere at the anchor's representative distance, which carry the rest and keep the
+///    SH bounded away from the cameras. view_weight = 0 fits the sphere alone: the DC term is then
+///    the sphere-average colour, not the colour the cameras saw, which costs PSNR at low degrees.
 ///    With the appearance effect the mean embedding is used (as generate(camera_index = -1)).
 #pragma once
 
@@ -27,8 +32,9 @@
 namespace crpgs {
 
 struct BakeOptions {
-  int sh_degree = 3;    ///< 0..3
-  int directions = 96;  ///< samples of the SH fit (>= sh_coeff_count(sh_degree))
+  int sh_degree = 3;         ///< 0..3
+  int directions = 96;       ///< sphere samples of the SH fit (>= sh_coeff_count(sh_degree))
+  double view_weight = 0.9;  ///< share of the fit on the cameras' own views, [0, 1)
   std::vector<Eigen::Vector3d> camera_centers;  ///< representative views (>= 1)
 };
 
@@ -36,8 +42,17 @@ struct BakeOptions {
 torch::Tensor fibonacci_directions(int count);
 /// [S, B] the 3DGS SH basis (sh_basis) at unit directions [S, 3], B = sh_coeff_count(degree).
 torch::Tensor sh_basis_matrix(const torch::Tensor& dirs, int degree);
-/// Least-squares SH coefficients [G, B, 3] of colours [G, S, 3] sampled at dirs [S, 3]:
-/// argmin Σ_s |0.5 + basis(d_s) · c - colour_s|^2 (solved in float64).
+/// Samples of a weighted SH fit: colours [G, S, 3], the SH basis at their directions, shared
+/// [S, B] or per Gaussian [G, S, B], and the weight of each sample.
+struct ShSamples {
+  torch::Tensor colors;
+  torch::Tensor basis;
+  double weight = 1;
+};
+/// SH coefficients [G, B, 3]: argmin Σ_parts weight Σ_s |0.5 + basis_s · c - colour_s|^2
+/// (normal equations in float64; the parts together must determine all B coefficients).
+torch::Tensor fit_sh(const std::vector<ShSamples>& parts);
+/// The unweighted fit of colours [G, S, 3] sampled at shared dirs [S, 3].
 torch::Tensor fit_sh(const torch::Tensor& colors, const torch::Tensor& dirs, int degree);
 
 /// Bakes the Gaussians the model renders (its quantised/decoded rows when it has them; pass the

@@ -64,12 +64,25 @@ torch::Tensor sh_basis_matrix(const torch::Tensor& dirs, int degree) {
   return out;
 }
 
+torch::Tensor fit_sh(const std::vector<ShSamples>& parts) {
+  if (parts.empty()) throw std::invalid_argument("fit_sh: no samples");
+  torch::Tensor normal, rhs;  // [1 or G, B, B], [G, B, 3]
+  for (const auto& p : parts) {
+    auto b = p.basis.to(torch::kDouble);
+    if (b.dim() == 2) b = b.unsqueeze(0);
+    auto bt = b.transpose(1, 2) * p.weight;
+    auto n = torch::matmul(bt, b);
+    auto r = torch::matmul(bt, p.colors.to(torch::kDouble) - 0.5);
+    normal = normal.defined() ? normal + n : n;
+    rhs = rhs.defined() ? rhs + r : r;
+  }
+  if (normal.size(0) == 1)  // one system for all Gaussians: invert it once
+    return torch::matmul(torch::inverse(normal[0]), rhs).to(torch::kFloat);
+  return torch::linalg_solve(normal, rhs).to(torch::kFloat);
+}
+
 torch::Tensor fit_sh(const torch::Tensor& colors, const torch::Tensor& dirs, int degree) {
-  auto basis = sh_basis_matrix(dirs, degree).to(torch::kDouble);  // [S, B]
-  auto bt = basis.t();
-  auto solve = torch::matmul(torch::inverse(torch::matmul(bt, basis)), bt);  // [B, S]
-  auto target = colors.to(torch::kDouble) - 0.5;                             // [G, S, 3]
-  return torch::matmul(solve, target).to(torch::kFloat);                     // [G, B, 3]
+  return fit_sh({ShSamples{colors, sh_basis_matrix(dirs, degree)}});
 }
 
 StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& options,
@@ -83,6 +96,8 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
                       " directions for SH degree " + std::to_string(degree));
   if (options.camera_centers.empty())
     return Status(StatusCode::kInvalidArgument, "export: no camera centres for the view inputs");
+  if (!(options.view_weight >= 0 && options.view_weight < 1))
+    return Status(StatusCode::kInvalidArgument, "export: the view weight must be in [0, 1)");
   torch::NoGradGuard no_grad;
   AllVisible all;
   Camera cam;
@@ -150,9 +165,17 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
   auto op =
       opacity.reshape({M * K}).index_select(0, keep).to(torch::kDouble).clamp(1e-12, 1 - 1e-12);
 
-  // Colours over the sphere of directions, in chunks of anchors; SH fitted per Gaussian.
+  // Colours in chunks of anchors, at the sphere's directions and at each camera's own view;
+  // SH fitted per Gaussian.
   const int S = options.directions;
-  auto dirs = fibonacci_directions(S);  // [S, 3]
+  const double w = options.view_weight;
+  const int64_t C = w > 0 ? int64_t(options.camera_centers.size()) : 0;
+  auto dirs = fibonacci_directions(S);                // [S, 3]
+  auto sphere_basis = sh_basis_matrix(dirs, degree);  // [S, B]
+  auto centers = torch::empty({C, 3});
+  for (int64_t c = 0; c < C; ++c)
+    for (int i = 0; i < 3; ++i) centers[c][i] = float(options.camera_centers[size_t(c)][i]);
+  auto unit = [](const torch::Tensor& v) { return v / v.norm(2, -1, true).clamp_min(1e-12); };
   torch::Tensor app;
   if (fx.appearance_dim > 0) app = mlps.at("appearance").mean(0);  // as camera_index = -1
   const int nb = sh_coeff_count(degree);
@@ -165,16 +188,30 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
     int64_t g1 = g0;
     while (g1 < G && keep_acc[g1] < (a0 + mc) * K) ++g1;
     if (g1 == g0) continue;
-    auto f = feat.narrow(0, a0, mc).unsqueeze(0).expand({S, mc, F}).reshape({S * mc, F});
-    auto dd = dirs.unsqueeze(1).expand({S, mc, 3}).reshape({S * mc, 3});
-    auto dist = rep_dist.narrow(0, a0, mc).unsqueeze(0).expand({S, mc, 1}).reshape({S * mc, 1});
-    auto in = view_input(f, dd, dist);
-    if (app.defined()) in = torch::cat({in, app.unsqueeze(0).expand({S * mc, app.size(0)})}, 1);
+    const int64_t T = S + C;
+    auto dd = dirs.unsqueeze(1).expand({S, mc, 3});                          // [T, mc, 3]
+    auto dist = rep_dist.narrow(0, a0, mc).unsqueeze(0).expand({S, mc, 1});  // [T, mc, 1]
+    if (C > 0) {
+      auto v = pos.narrow(0, a0, mc).unsqueeze(0) - centers.unsqueeze(1);  // [C, mc, 3]
+      dd = torch::cat({dd, unit(v)}, 0);
+      dist = torch::cat({dist, v.norm(2, 2, true)}, 0);
+    }
+    auto f = feat.narrow(0, a0, mc).unsqueeze(0).expand({T, mc, F}).reshape({T * mc, F});
+    auto in = view_input(f, dd.reshape({T * mc, 3}), dist.reshape({T * mc, 1}));
+    if (app.defined()) in = torch::cat({in, app.unsqueeze(0).expand({T * mc, app.size(0)})}, 1);
     auto col = torch::sigmoid(mlp(mlps, "mlp_color", in))
-                   .reshape({S, mc * K, 3})
-                   .permute({1, 0, 2});  // [mc*K, S, 3]
-    auto rows = keep.narrow(0, g0, g1 - g0) - a0 * K;
-    coeffs.narrow(0, g0, g1 - g0).copy_(fit_sh(col.index_select(0, rows), dirs, degree));
+                   .reshape({T, mc * K, 3})
+                   .permute({1, 0, 2});  // [mc*K, T, 3]
+    const int64_t g = g1 - g0;
+    auto c = col.index_select(0, keep.narrow(0, g0, g) - a0 * K);  // [g, T, 3]
+    std::vector<ShSamples> parts{{c.narrow(1, 0, S), sphere_basis, (1 - w) / S}};
+    if (C > 0) {
+      // The basis where a renderer evaluates it: from the camera centre to the Gaussian.
+      auto v = unit(means.narrow(0, g0, g).unsqueeze(1) - centers.unsqueeze(0));  // [g, C, 3]
+      auto basis = sh_basis_matrix(v.reshape({g * C, 3}), degree).reshape({g, C, nb});
+      parts.push_back({c.narrow(1, S, C), basis, w / double(C)});
+    }
+    coeffs.narrow(0, g0, g).copy_(fit_sh(parts));
     g0 = g1;
   }
 
