@@ -212,6 +212,82 @@ TEST(Report, RecordsRebuildTheReportAndNewerRunsReplaceOlderOnes) {
   EXPECT_EQ(tables(read_text(resumed->markdown)), tables(read_text(first->markdown)));
 }
 
+/// Two runs of `method` on `dataset`; `coded`: with a bitstream and codec times, else as a
+/// config without the rate path writes them (size 0, no encode/decode times).
+void add_runs(const std::string& runs, const std::string& dataset, bool coded, int* index) {
+  for (int i = 0; i < 2; ++i) {
+    RunMetrics m;
+    m.method = "base";
+    m.dataset = dataset;
+    m.lambda = coded ? 1e-3 * (i + 1) : NAN;
+    m.size_bytes = coded ? uint64_t(3e6 / (i + 1)) : 0;
+    m.views = {{"v0", 25.0 - i, 0.8, 0.02}};
+    m.train_seconds = 100;
+    m.render_seconds_per_view = 0.02;
+    if (coded) {
+      m.encode_seconds = 1;
+      m.decode_seconds = 0.5;
+      m.breakdown[0] = m.size_bytes;
+    }
+    m.trace = {{10, 100, 20.0}, {100, 1000, 25.0 - i}};
+    const std::string dir = runs + "/" + std::to_string(*index);
+    fs::create_directories(dir);
+    EXPECT_TRUE(write_run_metrics(dir + "/metrics.json", m).ok());
+    write_text(dir + "/run.json",
+               "{\"id\": \"" + std::to_string(*index) + "\", \"index\": " + std::to_string(*index) +
+                   ", \"method\": \"base\", \"dataset\": \"" + dataset + "\"}\n");
+    ++*index;
+  }
+}
+
+TEST(Report, RunsWithoutBitstreamsAndLookAlikeNamesGetTheirOwnPlots) {
+  if (!gnuplot_available()) GTEST_SKIP() << "gnuplot not installed (Debian: gnuplot-nox)";
+  // "a b" has no bitstreams (a config without the rate path): no RD plot, a cost plot of the
+  // render time only. "a_b" maps to the same file-name part and must not overwrite it.
+  const std::string runs = fresh_dir("uncoded") + "/runs";
+  int index = 0;
+  add_runs(runs, "a b", false, &index);
+  add_runs(runs, "a_b", true, &index);
+  ReportOptions opt;
+  opt.out_dir = fresh_dir("uncoded_out");
+  auto out = write_report({runs}, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  std::set<std::string> names;
+  for (const auto& p : out->pngs) {
+    names.insert(fs::path(p).filename().string());
+    EXPECT_GT(read_text(p).size(), 8000u) << p << " looks empty";
+  }
+  const std::set<std::string> expected = {"time_a_b.png",   "cost_a_b.png",
+                                          "rd_a_b_2.png",   "time_a_b_2.png",
+                                          "cost_a_b_2.png", "breakdown_a_b_2_base.png"};
+  EXPECT_EQ(names, expected);
+  ASSERT_EQ(out->notes.size(), 1u);
+  EXPECT_EQ(out->notes[0], "a b: no RD plot, no run wrote a bitstream");
+  EXPECT_NE(read_text(out->markdown).find("> a b: no RD plot"), std::string::npos);
+}
+
+TEST(Report, APlotGnuplotCannotDrawBecomesANoteAndTheTablesAreWritten) {
+  const std::string dir = fresh_dir("bad_gnuplot");
+  const std::string gnuplot = dir + "/gnuplot";
+  write_text(gnuplot,
+             "#!/bin/sh\n[ \"$1\" = --version ] && { echo gnuplot 5.4; exit 0; }\n"
+             "echo \"line 7: all points y value undefined!\"\nexit 1\n");
+  fs::permissions(gnuplot, fs::perms::owner_all);
+  const std::string runs = make_fixture("bad_gnuplot_runs");
+  ReportOptions opt;
+  opt.gnuplot = gnuplot;
+  opt.out_dir = dir + "/out";
+  auto out = write_report({runs}, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  EXPECT_TRUE(out->pngs.empty());
+  ASSERT_FALSE(out->notes.empty());
+  EXPECT_EQ(out->notes[0], "rd_fern.png not drawn: gnuplot: line 7: all points y value undefined!");
+  const std::string md = read_text(out->markdown);
+  EXPECT_NE(md.find("| hac | crpgs | -30.00 |"), std::string::npos) << md;
+  EXPECT_NE(md.find("> cost_fern.png not drawn"), std::string::npos) << md;
+  EXPECT_NE(read_text(out->html).find("rd_fern.png not drawn"), std::string::npos);
+}
+
 TEST(Report, Base64) {
   EXPECT_EQ(base64_encode(""), "");
   EXPECT_EQ(base64_encode("f"), "Zg==");

@@ -63,5 +63,25 @@ TEST(RunMetrics, RejectsIncompleteDocuments) {
                   .ok());
 }
 
+TEST(RunMetrics, CountsMustBeWholeNumbersInRange) {
+  // Byte counts and iterations are cast to integers: anything a cast would mangle is refused.
+  auto doc = [](const std::string& fields) {
+    return run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"psnr_mean\": 30, " +
+                                 fields + "}");
+  };
+  for (const char* bad :
+       {"\"size_bytes\": -1", "\"size_bytes\": 1.5", "\"size_bytes\": 1e300",
+        "\"size_bytes\": \"10\"", "\"size_bytes\": 10, \"bitstream\": {\"features\": -3}",
+        "\"size_bytes\": 10, \"peak_memory_bytes\": 1e30",
+        "\"size_bytes\": 10, \"trace\": [[1, -2, 20]]",
+        "\"size_bytes\": 10, \"trace\": [[1, 1e12, 20]]"}) {
+    auto m = doc(bad);
+    EXPECT_FALSE(m.ok()) << bad;
+  }
+  auto m = doc("\"size_bytes\": 9007199254740992, \"bitstream\": {\"features\": 7}");
+  ASSERT_TRUE(m.ok()) << m.status().message();
+  EXPECT_EQ(m->size_bytes, uint64_t(1) << 53);
+}
+
 }  // namespace
 }  // namespace crpgs::experiments

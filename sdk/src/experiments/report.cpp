@@ -4,8 +4,10 @@
 #include <stdlib.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <set>
@@ -152,7 +154,14 @@ class Plotter {
     const std::string script_path = data(png_name + ".gp", script);
     std::string out;
     const int rc = run_capture(shell_quote(gnuplot_) + " " + shell_quote(script_path), out);
-    if (rc != 0) return Status(StatusCode::kInternal, "gnuplot failed on " + png_name + ": " + out);
+    if (rc != 0) {
+      // gnuplot's own message, on one line, for a note in the report.
+      std::string msg;
+      for (char c : out) msg += c == '\n' ? ' ' : c;
+      while (!msg.empty() && msg.back() == ' ') msg.pop_back();
+      if (msg.size() > 400) msg = msg.substr(0, 400) + "...";
+      return Status(StatusCode::kInternal, png_name + " not drawn: gnuplot: " + msg);
+    }
     CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> png, read_file_bytes(tmp_png));
     CRPGS_RETURN_IF_ERROR(write_file_atomic(out_ + "/" + png_name, png));
     pngs.push_back(png_name);
@@ -167,21 +176,50 @@ class Plotter {
 
 const char* kTimeLabel[3] = {"encode time (s)", "decode time (s)", "render time per view (ms)"};
 
-/// `plot` clause listing one series per method from per-method data files.
-Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& names) {
-  const std::string ds = file_part(g.dataset);
-  // Data files: one per method: size_MB psnr enc dec render_ms.
+/// File-name parts for labels (datasets, methods): file_part(label), with a number appended when
+/// another label already maps to it ("a b" and "a_b"), so no plot overwrites another's.
+class FileNames {
+ public:
+  const std::string& operator()(const std::string& label) {
+    auto it = assigned_.find(label);
+    if (it != assigned_.end()) return it->second;
+    std::string part = file_part(label);
+    for (int n = 2; !used_.insert(part).second; ++n)
+      part = file_part(label) + "_" + std::to_string(n);
+    return assigned_[label] = part;
+  }
+
+ private:
+  std::map<std::string, std::string> assigned_;
+  std::set<std::string> used_;
+};
+
+/// Draws a group's plots. A plot gnuplot cannot draw becomes a note, and the other plots and the
+/// tables are still written; panels with no finite values are left out rather than failing.
+void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames& methods,
+                     std::vector<std::string>& names, std::vector<std::string>& notes) {
+  const std::string ds = datasets(g.dataset);
+  auto draw = [&](const std::string& name, const std::string& body, int w, int h) {
+    Status st = p.plot(name, body, w, h);
+    if (st.ok())
+      names.push_back(name);
+    else
+      notes.push_back(st.message());
+  };
+  // Data files: one per method: size_MB psnr enc dec render_ms (NaN: not measured; size 0, a
+  // run without a bitstream, is NaN too, as log scales cannot show it).
+  auto nan_text = [](double v) { return std::isfinite(v) ? std::to_string(v) : "NaN"; };
   std::vector<std::string> files;
+  bool any_size = false, any_time[3] = {false, false, false};
   for (size_t i = 0; i < g.methods.size(); ++i) {
     std::string text = "# size_MB psnr encode_s decode_s render_ms\n";
     for (const auto* r : g.by_method.at(g.methods[i])) {
-      char buf[256];
       const auto& m = r->metrics;
-      auto nan_text = [](double v) { return std::isfinite(v) ? std::to_string(v) : "NaN"; };
-      std::snprintf(buf, sizeof buf, "%.9g %.6f %s %s %s\n", m.size_bytes / 1e6, m.psnr_mean,
-                    nan_text(m.encode_seconds).c_str(), nan_text(m.decode_seconds).c_str(),
-                    nan_text(m.render_seconds_per_view * 1e3).c_str());
-      text += buf;
+      const double t[3] = {m.encode_seconds, m.decode_seconds, m.render_seconds_per_view * 1e3};
+      any_size |= m.size_bytes > 0;
+      for (int k = 0; k < 3; ++k) any_time[k] |= std::isfinite(t[k]);
+      text += nan_text(m.size_bytes > 0 ? m.size_bytes / 1e6 : NAN) + " " + nan_text(m.psnr_mean) +
+              " " + nan_text(t[0]) + " " + nan_text(t[1]) + " " + nan_text(t[2]) + "\n";
     }
     files.push_back(p.data(ds + "_m" + std::to_string(i) + ".dat", text));
   }
@@ -194,13 +232,13 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
   };
 
   // RD curves.
-  {
-    const std::string name = "rd_" + ds + ".png";
+  if (any_size) {
     std::string b = "set title " + gp_quote("Rate-distortion: " + g.dataset) + "\n";
     b += "set xlabel \"size (MB, log scale)\"\nset ylabel \"PSNR (dB)\"\nset logscale x\n";
     b += "plot " + series("1:2");
-    CRPGS_RETURN_IF_ERROR(p.plot(name, b));
-    names.push_back(name);
+    draw("rd_" + ds + ".png", b, 900, 600);
+  } else {
+    notes.push_back(g.dataset + ": no RD plot, no run wrote a bitstream");
   }
   // PSNR vs training wall-clock, one line per run.
   {
@@ -210,11 +248,9 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
       for (const auto* r : g.by_method.at(method)) {
         if (r->metrics.trace.empty()) continue;
         std::string text = "# seconds iteration psnr\n";
-        for (const auto& t : r->metrics.trace) {
-          char buf[96];
-          std::snprintf(buf, sizeof buf, "%.6f %d %.6f\n", t.seconds, t.iteration, t.psnr);
-          text += buf;
-        }
+        for (const auto& t : r->metrics.trace)
+          text += nan_text(t.seconds) + " " + std::to_string(t.iteration) + " " + nan_text(t.psnr) +
+                  "\n";
         const std::string f = p.data(ds + "_trace" + std::to_string(k++) + ".dat", text);
         const std::string label =
             method + (std::isfinite(r->rate) ? " λ=" + rate_text(r->rate) : "");
@@ -222,28 +258,31 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
                      " using 1:3 with lines lw 2 title " + gp_quote(label);
       }
     if (!plot_list.empty()) {
-      const std::string name = "time_" + ds + ".png";
       std::string b = "set title " + gp_quote("Test PSNR vs training time: " + g.dataset) + "\n";
       b += "set xlabel \"training wall-clock (s)\"\nset ylabel \"PSNR (dB)\"\nplot " + plot_list;
-      CRPGS_RETURN_IF_ERROR(p.plot(name, b, 1000, 600));
-      names.push_back(name);
+      draw("time_" + ds + ".png", b, 1000, 600);
     }
   }
-  // Size and PSNR against encode, decode and render time.
+  // Size and PSNR against encode, decode and render time: the panels that have values.
   {
-    const std::string name = "cost_" + ds + ".png";
-    std::string b = "set multiplot layout 2,3 title " +
-                    gp_quote("What quality and size cost in time: " + g.dataset) + "\n";
-    b += "set key inside bottom right\n";
-    for (int row = 0; row < 2; ++row)
-      for (int col = 0; col < 3; ++col) {
-        b += "set xlabel " + gp_quote(kTimeLabel[col]) + "\n";
-        b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MB)\"") + "\n";
-        b += "plot " + series(std::to_string(3 + col) + ":" + (row == 0 ? "2" : "1")) + "\n";
-      }
-    b += "unset multiplot";
-    CRPGS_RETURN_IF_ERROR(p.plot(name, b, 1500, 900));
-    names.push_back(name);
+    std::vector<int> cols;
+    for (int col = 0; col < 3; ++col)
+      if (any_time[col]) cols.push_back(col);
+    const int rows = any_size ? 2 : 1;
+    if (!cols.empty()) {
+      std::string b = "set multiplot layout " + std::to_string(rows) + "," +
+                      std::to_string(cols.size()) + " title " +
+                      gp_quote("What quality and size cost in time: " + g.dataset) + "\n";
+      b += "set key inside bottom right\n";
+      for (int row = 0; row < rows; ++row)
+        for (int col : cols) {
+          b += "set xlabel " + gp_quote(kTimeLabel[col]) + "\n";
+          b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MB)\"") + "\n";
+          b += "plot " + series(std::to_string(3 + col) + ":" + (row == 0 ? "2" : "1")) + "\n";
+        }
+      b += "unset multiplot";
+      draw("cost_" + ds + ".png", b, 500 * int(cols.size()), 450 * rows);
+    }
   }
   // Bitstream breakdown per method: one stacked bar per run, in % of its size.
   for (size_t i = 0; i < g.methods.size(); ++i) {
@@ -266,7 +305,6 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
     }
     if (!any) continue;
     const std::string f = p.data(ds + "_bd" + std::to_string(i) + ".dat", text);
-    const std::string name = "breakdown_" + ds + "_" + file_part(g.methods[i]) + ".png";
     std::string b =
         "set title " + gp_quote("Bitstream breakdown: " + g.methods[i] + " on " + g.dataset) + "\n";
     b += "set style data histograms\nset style histogram rowstacked\n"
@@ -275,10 +313,8 @@ Status plots_for_group(Plotter& p, const Group& g, std::vector<std::string>& nam
          "colors = \"#4e79a7 #f28e2b #76b7b2 #e15759 #59a14f #edc948 #b07aa1 #9c755f #bab0ac\"\n";
     b += "plot for [c=2:" + std::to_string(kNumBitstreamCategories + 1) + "] " + gp_quote(f) +
          " using c:xtic(1) title columnheader(c) lc rgb word(colors, c - 1)";
-    CRPGS_RETURN_IF_ERROR(p.plot(name, b));
-    names.push_back(name);
+    draw("breakdown_" + ds + "_" + methods(g.methods[i]) + ".png", b, 900, 600);
   }
-  return OkStatus();
 }
 
 // A run id as a relative path inside a records directory: no root, no "..", not empty.
@@ -362,14 +398,14 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
     for (auto it = fs::recursive_directory_iterator(runs_dir, ec);
          !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
       std::error_code path_ec;
-      if (it->is_directory() &&
+      if (it->is_directory(path_ec) &&
           ((!excluded.empty() && fs::weakly_canonical(it->path(), path_ec) == excluded) ||
            fs::exists(it->path() / kRecordsMarker, path_ec))) {
         it.disable_recursion_pending();  // this report's output, or an older report's records
         continue;
       }
       const auto name = it->path().filename();
-      if (it->is_regular_file() && (name == "metrics.json" || name == "run.json"))
+      if (it->is_regular_file(path_ec) && (name == "metrics.json" || name == "run.json"))
         dirs.push_back(it->path().parent_path());
     }
     // A walk that stopped early would leave runs out of the tables without a word.
@@ -397,7 +433,8 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
           if (auto* v = j.find("method"); v && v->is_string()) r.method = v->string;
           if (auto* v = j.find("dataset"); v && v->is_string()) r.dataset = v->string;
           if (auto* v = j.find("rate"); v && v->is_number()) r.rate = v->number;
-          if (auto* v = j.find("index"); v && v->is_number()) r.order = int(v->number);
+          if (auto* v = j.find("index"); v && v->is_number() && v->number >= 0 && v->number < 1e9)
+            r.order = int(v->number);
         }
       }
       // The same run seen before (an older record, or an unfinished copy): this one replaces
@@ -464,16 +501,21 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       });
 
   ReportOutput result;
-  const bool plots = opt.plots && gnuplot_available(opt.gnuplot);
+  bool plots = opt.plots && gnuplot_available(opt.gnuplot);
   if (opt.plots && !plots)
     result.notes.push_back("gnuplot not found (" + opt.gnuplot +
                            "): no plots; install the Debian package gnuplot-nox");
   std::string scratch;
   if (plots) {
-    std::string templ = (fs::temp_directory_path() / "crpgs-report-XXXXXX").string();
-    if (!mkdtemp(templ.data())) return Status(StatusCode::kInternal, "mkdtemp failed");
-    scratch = templ;
+    fs::path tmp = fs::temp_directory_path(ec);
+    if (ec) tmp = "/tmp";  // TMPDIR names nothing usable
+    std::string templ = (tmp / "crpgs-report-XXXXXX").string();
+    if (mkdtemp(templ.data()))
+      scratch = templ;
+    else
+      result.notes.push_back("no plots: cannot create " + templ + ": " + std::strerror(errno));
   }
+  plots = plots && !scratch.empty();
   Plotter plotter(opt.gnuplot, opt.out_dir, scratch);
 
   std::string summary =
@@ -495,7 +537,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       "is fitted on log(size), and the difference is averaged over the common interval; — means "
       "no common interval (or fewer than 2 points).\n\n";
 
-  Status plot_status = OkStatus();
+  FileNames dataset_files, method_files;
   for (const auto& g : groups) {
     md += "## " + g.dataset + "\n\n### Rate–distortion points\n\n";
     html_body += "<h2>" + html_escape(g.dataset) + "</h2>\n<h3>Rate–distortion points</h3>\n";
@@ -607,8 +649,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
 
     if (plots) {
       std::vector<std::string> names;
-      Status st = plots_for_group(plotter, g, names);
-      if (!st.ok() && plot_status.ok()) plot_status = st;
+      plots_for_group(plotter, g, dataset_files, method_files, names, result.notes);
       if (!names.empty()) {
         md += "### Plots\n\n";
         html_body += "<h3>Plots</h3>\n";
@@ -622,9 +663,11 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       }
     }
   }
-  for (const auto& n : result.notes) md += "> " + n + "\n\n";
+  for (const auto& n : result.notes) {
+    md += "> " + n + "\n\n";
+    html_body += "<p><em>" + html_escape(n) + "</em></p>\n";
+  }
   if (!scratch.empty()) fs::remove_all(scratch, ec);
-  if (!plot_status.ok()) return plot_status;
 
   const std::string html =
       "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>crpgs sweep report</title>\n"

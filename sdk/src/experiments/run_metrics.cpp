@@ -3,6 +3,7 @@
 
 #include <sys/resource.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "core/time_text.h"
@@ -22,6 +23,22 @@ double num(const JsonValue& obj, const char* key, double fallback = NAN) {
 std::string str(const JsonValue& obj, const char* key) {
   const JsonValue* v = obj.find(key);
   return v && v->is_string() ? v->string : std::string();
+}
+
+/// A byte count or a counter: JSON numbers are doubles, exact up to 2^53; anything else (negative,
+/// fractional, huge) is refused rather than cast.
+StatusOr<uint64_t> count(const JsonValue& obj, const char* key, bool required) {
+  const JsonValue* v = obj.find(key);
+  if (!v) {
+    if (required)
+      return Status(StatusCode::kInvalidArgument, std::string("metrics: missing \"") + key + "\"");
+    return uint64_t{0};
+  }
+  if (!v->is_number() || !(v->number >= 0) || v->number > 9007199254740992.0 ||
+      v->number != std::floor(v->number))
+    return Status(StatusCode::kInvalidArgument,
+                  std::string("metrics: \"") + key + "\" must be a whole number in [0, 2^53]");
+  return static_cast<uint64_t>(v->number);
 }
 
 }  // namespace
@@ -105,21 +122,20 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
   m.dataset = str(doc, "dataset");
   m.lambda = num(doc, "lambda");
   m.config_hash = str(doc, "config_hash");
-  const JsonValue* size = doc.find("size_bytes");
-  if (!size || !size->is_number() || size->number < 0)
-    return Status(StatusCode::kInvalidArgument, "metrics: missing \"size_bytes\"");
-  m.size_bytes = static_cast<uint64_t>(size->number);
+  CRPGS_ASSIGN_OR_RETURN(m.size_bytes, count(doc, "size_bytes", true));
   if (const JsonValue* b = doc.find("bitstream"); b && b->is_object())
-    for (int c = 0; c < kNumBitstreamCategories; ++c)
-      m.breakdown[c] =
-          static_cast<uint64_t>(num(*b, category_name(static_cast<BitstreamCategory>(c)), 0));
+    for (int c = 0; c < kNumBitstreamCategories; ++c) {
+      CRPGS_ASSIGN_OR_RETURN(m.breakdown[c],
+                             count(*b, category_name(static_cast<BitstreamCategory>(c)), false));
+    }
   m.psnr_mean = num(doc, "psnr_mean");
   m.ssim_mean = num(doc, "ssim_mean");
   m.train_seconds = num(doc, "train_seconds");
   m.encode_seconds = num(doc, "encode_seconds");
   m.decode_seconds = num(doc, "decode_seconds");
   m.render_seconds_per_view = num(doc, "render_seconds_per_view");
-  m.peak_memory_bytes = static_cast<int64_t>(num(doc, "peak_memory_bytes", 0));
+  CRPGS_ASSIGN_OR_RETURN(const uint64_t peak, count(doc, "peak_memory_bytes", false));
+  m.peak_memory_bytes = static_cast<int64_t>(peak);
   if (const JsonValue* views = doc.find("views"); views && views->is_array())
     for (const auto& v : views->array) {
       if (!v.is_object()) return Status(StatusCode::kInvalidArgument, "metrics: bad view entry");
@@ -128,7 +144,8 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
   if (const JsonValue* trace = doc.find("trace"); trace && trace->is_array())
     for (const auto& t : trace->array) {
       if (!t.is_array() || t.array.size() != 3 || !t.array[0].is_number() ||
-          !t.array[1].is_number() || !t.array[2].is_number())
+          !t.array[1].is_number() || !t.array[2].is_number() || !(t.array[1].number >= 0) ||
+          t.array[1].number > 2147483647.0)
         return Status(StatusCode::kInvalidArgument,
                       "metrics: trace entries must be [seconds, iteration, psnr]");
       m.trace.push_back(
