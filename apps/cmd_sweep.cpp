@@ -9,9 +9,11 @@
 #include <map>
 
 #include "cli_common.h"
+#include "crpgs/atomic_file.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/experiments/sweep.h"
+#include "crpgs/hashing.h"
 #include "crpgs/shared_prefix.h"
 #include "progress_bar.h"
 
@@ -71,6 +73,8 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
     if (ex::run_state(r.dir) == ex::RunState::kComplete) {
       ++done;
       row[1] = "done";
+      if (const std::string change = ex::config_change(r, &registry); !change.empty())
+        row[1] += ", but the sweep now asks for another config (" + change + ")";
       if (auto m = ex::read_run_metrics(r.dir + "/metrics.json"); m.ok()) {
         std::snprintf(buf, sizeof buf, "%.3f dB, %llu B, trained %s", m->psnr_mean,
                       static_cast<unsigned long long>(m->size_bytes),
@@ -88,6 +92,8 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
     } else if (fs::exists(r.dir + "/checkpoint.pt", ec)) {
       ++stopped;
       row[1] = "stopped (resumes from its checkpoint)";
+      if (const std::string change = ex::config_change(r, &registry); !change.empty())
+        row[1] = "stopped (resumes from its checkpoint under a changed config: " + change + ")";
       if (progress)
         row[2] =
             "last seen " + std::to_string(progress->done) + "/" + std::to_string(progress->total);
@@ -155,17 +161,38 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
     std::vector<int> pending;
     for (const auto& r : runs) {
       if (ex::run_state(r.dir) == ex::RunState::kComplete) continue;
-      // Write (and validate) every config now rather than in the array tasks.
-      Status st =
-          a.dry_run ? ex::build_run_config(r, &registry).status() : ex::prepare_run(r, &registry);
+      // Write (and validate) every config now rather than in the array tasks; not the config of
+      // a run another process is training.
+      const std::string holder = directory_lock_holder(r.dir);
+      if (!holder.empty()) {
+        std::printf("%s: running in another process (%s), not submitted\n", r.id.c_str(),
+                    holder.c_str());
+        continue;
+      }
+      Status st = ex::build_run_config(r, &registry).status();
+      if (st.ok() && !a.dry_run) {
+        auto lock = lock_directory(r.dir);
+        st = lock.ok() ? ex::prepare_run(r, &registry) : lock.status();
+      }
       if (!st.ok()) return report_error(st);
       pending.push_back(r.index);
     }
     std::printf("%zu finished, %zu to submit\n", runs.size() - pending.size(), pending.size());
     if (pending.empty()) return 0;
     const std::string exe = ex::self_executable();
-    const std::string sweep_abs = fs::absolute(a.file).string();
     const std::string runs_abs = fs::absolute(runs_dir).string();
+    // The tasks read the sweep file when they start, maybe hours from now: they get a copy, so
+    // that editing the file meanwhile cannot shift the run indices they were submitted for.
+    auto text = read_file_bytes(a.file);
+    if (!text.ok()) return report_error(text.status());
+    const std::string_view bytes(reinterpret_cast<const char*>(text->data()), text->size());
+    const std::string sweep_abs =
+        runs_abs + "/slurm/sweep-" + hex64(fnv1a64(bytes)) + fs::path(a.file).extension().string();
+    if (!a.dry_run) {
+      std::error_code ec;
+      fs::create_directories(runs_abs + "/slurm", ec);
+      if (Status st = write_file_atomic(sweep_abs, *text); !st.ok()) return report_error(st);
+    }
     if (a.dry_run) {
       std::printf("%s", ex::slurm_script(spec.value(), pending, exe, sweep_abs, runs_abs).c_str());
       return 0;

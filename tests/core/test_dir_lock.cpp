@@ -4,6 +4,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -46,6 +47,32 @@ TEST(DirectoryLock, MovedLockStaysHeld) {
   DirectoryLock moved = std::move(lock).value();
   EXPECT_TRUE(moved.held());
   EXPECT_FALSE(lock_directory(dir).ok());
+}
+
+TEST(DirectoryLock, AChildAdoptsTheLockItsParentHandedOver) {
+  // What `crpgs sweep` does for `crpgs train`, within one process: the lock's description
+  // survives on another descriptor, announced in the environment, and lock_directory adopts it.
+  const std::string dir = fresh_lock_dir("handed");
+  auto parent = lock_directory(dir);
+  ASSERT_TRUE(parent.ok());
+  const int inherited = ::dup(parent->fd());
+  ASSERT_GT(inherited, 2);
+  const std::string env = DirectoryLock::child_environment(inherited);
+  const std::string name = env.substr(0, env.find('='));
+  ASSERT_EQ(::setenv(name.c_str(), env.substr(env.find('=') + 1).c_str(), 1), 0);
+  parent = DirectoryLock();  // the parent lets go: the child's descriptor keeps the lock
+  EXPECT_NE(directory_lock_holder(dir), "");
+  auto other = lock_directory(fresh_lock_dir("other"));  // another directory adopts nothing
+  ASSERT_TRUE(other.ok()) << other.status().message();
+  EXPECT_NE(other->fd(), inherited);
+  ASSERT_NE(std::getenv(name.c_str()), nullptr);
+  auto child = lock_directory(dir);
+  ASSERT_TRUE(child.ok()) << child.status().message();
+  EXPECT_EQ(child->fd(), inherited);
+  EXPECT_EQ(std::getenv(name.c_str()), nullptr);  // not passed on further
+  EXPECT_FALSE(lock_directory(dir).ok());         // still exclusive
+  child = DirectoryLock();
+  EXPECT_EQ(directory_lock_holder(dir), "");
 }
 
 TEST(DirectoryLock, AHolderThatDiesLeavesNoStaleLock) {

@@ -100,6 +100,10 @@ TEST(Sweep, RejectsBadFiles) {
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml").ok());
   EXPECT_FALSE(parse_sweep("configs: [x/a.yaml, y/a.yaml]\n", "s.yaml").ok());  // same name
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nworkers: 0\n", "s.yaml").ok());
+  // Resources are pasted into #SBATCH lines: one word each.
+  EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nresources: {mem: \"4 G\"}\n", "s.yaml").ok());
+  EXPECT_FALSE(
+      parse_sweep("configs: [a.yaml]\nresources: {partition: \"a\\nb\"}\n", "s.yaml").ok());
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\ndatasets: [{set: {}}]\n", "s.yaml").ok());
   auto st = parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml");
   EXPECT_NE(st.status().message().find("bogus"), std::string::npos);
@@ -375,6 +379,51 @@ TEST(Sweep, StopStartsNothingMoreAndStopsTheRunningRun) {
   EXPECT_EQ(calls[2], hung.dir + " --resume");
 }
 
+TEST(Sweep, TheRunnerHoldsTheRunsLockFromItsStart) {
+  // The sweep hands its lock to the runner, so there is no moment in which another sweep could
+  // take the run (the fake runner never locks by itself).
+  LocalSweep s("handed_lock");
+  const SweepRun& hung = s.runs[0];
+  setenv("FAKE_HANG", hung.id.c_str(), 1);
+  s.opt.workers = 1;
+  std::atomic<bool> stop{false};
+  s.opt.stop = &stop;
+  std::string holder;
+  std::thread watch([&] {
+    for (int i = 0; i < 600 && !fs::exists(hung.dir + "/hang_started"); ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    holder = directory_lock_holder(hung.dir);
+    stop = true;
+  });
+  auto sum = run_sweep_local(s.runs, s.opt);
+  watch.join();
+  unsetenv("FAKE_HANG");
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->interrupted, 1);
+  EXPECT_NE(holder, "") << "the run was unlocked while its runner ran";
+  EXPECT_EQ(directory_lock_holder(hung.dir), "");  // released with the runner
+}
+
+TEST(Sweep, AFinishedRunWhoseConfigChangedIsKeptAndNamed) {
+  LocalSweep s("changed");
+  auto first = run_sweep_local(s.runs, s.opt);
+  ASSERT_TRUE(first.ok());
+  EXPECT_EQ(config_change(s.runs[0], nullptr), "");
+  SweepRun edited = s.runs[0];
+  edited.overrides.emplace_back("entropy.lambda", "0.25");
+  EXPECT_EQ(config_change(edited, nullptr), "entropy.lambda: 1.0e-4 -> 0.25");
+  s.lines.clear();
+  auto again = run_sweep_local({edited}, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->skipped, 1);
+  ASSERT_EQ(s.lines.size(), 1u);
+  EXPECT_NE(s.lines[0].find(": done, but the sweep now asks for another config (entropy.lambda: "
+                            "1.0e-4 -> 0.25); kept: delete "),
+            std::string::npos)
+      << s.lines[0];
+  EXPECT_EQ(s.calls().size(), s.runs.size());  // nothing rerun
+}
+
 TEST(Sweep, DryRunStartsNothing) {
   LocalSweep s("dry");
   s.opt.dry_run = true;
@@ -549,6 +598,12 @@ TEST(Sweep, SlurmScriptHasArrayAndResources) {
   EXPECT_NE(s.find("#SBATCH --mem=4G\n"), std::string::npos) << s;
   EXPECT_NE(s.find("#SBATCH --time=01:00:00\n"), std::string::npos) << s;
   EXPECT_NE(s.find("#SBATCH --partition=debug\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --output=\"/x/runs/slurm/%A_%a.out\"\n"), std::string::npos) << s;
+  EXPECT_NE(s.find("#SBATCH --chdir=\""), std::string::npos) << s;
+  // A '%' of the path is not a Slurm file-name pattern.
+  EXPECT_NE(slurm_script(spec.value(), {0}, "/opt/crpgs", "/x/s.yaml", "/x/100% runs")
+                .find("#SBATCH --output=\"/x/100%% runs/slurm/%A_%a.out\"\n"),
+            std::string::npos);
   EXPECT_NE(s.find("'/opt/crpgs' sweep '/x/s.yaml' -o '/x/runs' --run-index "
                    "\"$SLURM_ARRAY_TASK_ID\""),
             std::string::npos)

@@ -12,7 +12,7 @@ namespace crpgs {
 
 /// An exclusive lock on DIR/.lock (a Linux open-file-description lock): released when the object
 /// is destroyed, and by the kernel when the process ends in any way, so a crash leaves no stale
-/// lock. Not inherited by spawned processes.
+/// lock. Not inherited by spawned processes, except as hand_to_child() arranges.
 class DirectoryLock {
  public:
   DirectoryLock() = default;
@@ -22,6 +22,12 @@ class DirectoryLock {
   DirectoryLock& operator=(const DirectoryLock&) = delete;
   ~DirectoryLock();
   bool held() const { return fd_ >= 0; }
+  /// For a process about to be spawned that will lock the same directory (`crpgs sweep` starting
+  /// `crpgs train`), so that no other process can take the directory in between: the descriptor
+  /// to dup2 into the child as `child_fd`, and the "NAME=VALUE" to add to its environment, with
+  /// which the child's lock_directory adopts this lock instead of waiting for it.
+  int fd() const { return fd_; }
+  static std::string child_environment(int child_fd);
 
  private:
   friend StatusOr<DirectoryLock> lock_directory(const std::string& dir);
@@ -29,7 +35,8 @@ class DirectoryLock {
   int fd_ = -1;
 };
 
-/// Creates DIR if needed and takes its lock. kIoError naming the holder ("pid 123 since
+/// Creates DIR if needed and takes its lock (or adopts the one a parent handed over, see
+/// DirectoryLock::fd()). kIoError naming the holder ("pid 123 since
 /// 2026-11-24 00:10:00") when another process (or another DirectoryLock) holds it. Where the
 /// file system cannot lock (some network file systems), an unheld lock: check held().
 StatusOr<DirectoryLock> lock_directory(const std::string& dir);

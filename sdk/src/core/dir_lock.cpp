@@ -2,9 +2,11 @@
 #include "crpgs/dir_lock.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 
@@ -14,6 +16,7 @@ namespace crpgs {
 namespace {
 
 constexpr const char* kLockName = "/.lock";
+constexpr const char* kInheritedLockEnv = "CRPGS_INHERITED_LOCK_FD";
 
 struct flock whole_file(short type) {
   struct flock fl {};
@@ -45,13 +48,38 @@ DirectoryLock::~DirectoryLock() {
   if (fd_ >= 0) ::close(fd_);  // closing the description releases the lock
 }
 
+std::string DirectoryLock::child_environment(int child_fd) {
+  return std::string(kInheritedLockEnv) + "=" + std::to_string(child_fd);
+}
+
+namespace {
+
+/// The descriptor a parent handed over for `path` (same file, lock taken on it), or -1.
+int adopt_inherited(const std::string& path) {
+  const char* env = std::getenv(kInheritedLockEnv);
+  if (!env) return -1;
+  const int fd = std::atoi(env);
+  struct stat a {
+  }, b{};
+  if (fd <= 2 || ::fstat(fd, &a) != 0 || ::stat(path.c_str(), &b) != 0 || a.st_dev != b.st_dev ||
+      a.st_ino != b.st_ino)
+    return -1;                    // meant for another directory
+  ::unsetenv(kInheritedLockEnv);  // not for this process's own children
+  ::fcntl(fd, F_SETFD, FD_CLOEXEC);
+  return fd;
+}
+
+}  // namespace
+
 StatusOr<DirectoryLock> lock_directory(const std::string& dir) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   const std::string path = dir + kLockName;
-  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  int fd = adopt_inherited(path);
+  if (fd < 0) fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd < 0)
     return Status(StatusCode::kIoError, "cannot open " + path + ": " + std::strerror(errno));
+  // On an adopted descriptor this succeeds: the lock is already this description's.
   struct flock fl = whole_file(F_WRLCK);
   if (::fcntl(fd, F_OFD_SETLK, &fl) != 0) {
     const int err = errno;

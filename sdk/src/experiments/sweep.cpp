@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <map>
 #include <set>
+#include <string_view>
 #include <thread>
 
 #include <yaml-cpp/yaml.h>
@@ -174,6 +175,13 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
   }
   if (s.workers < 1) return bad(name, "'workers' must be >= 1");
   if (s.resources.cpus < 1) return bad(name, "'resources.cpus' must be >= 1");
+  // Pasted into #SBATCH lines: one word each.
+  for (const auto& [key, v] : {std::pair<const char*, const std::string&>{"mem", s.resources.mem},
+                               {"time", s.resources.time},
+                               {"partition", s.resources.partition}})
+    if (v.find_first_of(" \t\r\n\"'\\#") != std::string::npos)
+      return bad(name, std::string("'resources.") + key +
+                           "' must be one word without quotes, '#' or '\\' (got '" + v + "')");
   std::set<std::string> ids;
   for (const SweepRun& r : expand_sweep(s, "."))
     if (!ids.insert(r.id).second)
@@ -274,6 +282,50 @@ Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
   return write_file_atomic(run.dir + "/run.json", w.str());
 }
 
+namespace {
+
+/// Scalar (and sequence) values of a YAML tree by dotted key.
+void flatten(const YAML::Node& n, const std::string& prefix,
+             std::map<std::string, std::string>& out) {
+  if (n.IsMap()) {
+    for (const auto& kv : n)
+      flatten(kv.second, prefix + (prefix.empty() ? "" : ".") + kv.first.as<std::string>(), out);
+    return;
+  }
+  YAML::Emitter e;
+  e << YAML::Flow << n;
+  out[prefix] = e.c_str();
+}
+
+}  // namespace
+
+std::string config_change(const SweepRun& run, const ComponentRegistry* registry) {
+  const std::string saved_path = run.dir + "/config.yaml";
+  std::error_code ec;
+  if (!fs::exists(saved_path, ec)) return "";
+  auto now = build_run_config(run, registry);
+  if (!now.ok()) return "";  // the sweep reports the config error itself
+  // The saved copy resolved by this build, so that defaults added since do not count.
+  auto saved = Config::load_file(saved_path);
+  if (saved.ok() && registry) saved = saved->resolve(*registry);
+  if (!saved.ok()) return "its config.yaml is unreadable (" + saved.status().message() + ")";
+  if (saved->dump() == now->dump()) return "";
+  std::map<std::string, std::string> a, b;
+  flatten(saved->root(), "", a);
+  flatten(now->root(), "", b);
+  std::vector<std::string> diffs;
+  for (const auto& [k, v] : a)
+    if (auto it = b.find(k); it == b.end() || it->second != v)
+      diffs.push_back(k + ": " + v + " -> " + (it == b.end() ? "(none)" : it->second));
+  for (const auto& [k, v] : b)
+    if (!a.count(k)) diffs.push_back(k + ": (none) -> " + v);
+  if (diffs.empty()) return "its config.yaml differs";  // e.g. only in key order
+  std::string text;
+  for (size_t i = 0; i < diffs.size() && i < 3; ++i) text += (i ? ", " : "") + diffs[i];
+  if (diffs.size() > 3) text += ", and " + std::to_string(diffs.size() - 3) + " more";
+  return text;
+}
+
 RunState run_state(const std::string& run_dir) {
   std::error_code ec;
   if (run_marked_started(run_dir)) return RunState::kInterrupted;
@@ -291,10 +343,11 @@ struct Active {
 
 /// Prepares the directory and starts `runner train ...` with the logs appended. Returns 0 with
 /// `*skipped` saying why when, since the sweep's first look, the run was finished or another
-/// process took it.
-StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string* skipped) {
-  // Held while the directory is prepared, so nothing here overwrites another process's run; the
-  // trainer takes it for itself once started (the lock is not inherited).
+/// process took it. `*note`: what the start line should add (a resume under a changed config).
+StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string* skipped,
+                       std::string* note) {
+  // Held while the directory is prepared, so nothing here overwrites another process's run, and
+  // handed to the trainer, so no other process can take the run between this one and it.
   auto lock = lock_directory(run.dir);
   if (!lock.ok()) {
     const std::string holder = directory_lock_holder(run.dir);
@@ -308,6 +361,8 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string*
   }
   std::error_code ec;
   const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
+  if (const std::string change = resume ? config_change(run, opt.registry) : ""; !change.empty())
+    *note = "; it resumes its checkpoint under a changed config: " + change;
   CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
   CRPGS_RETURN_IF_ERROR(mark_run_started(run.dir));
 
@@ -334,11 +389,24 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string*
   const std::string out = run.dir + "/stdout.log", err = run.dir + "/stderr.log";
   posix_spawn_file_actions_addopen(&fa, 1, out.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
   posix_spawn_file_actions_addopen(&fa, 2, err.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
-  std::vector<char*> argv;
+  std::vector<std::string> env;
+  if (lock->held()) {
+    const int child_fd = lock->fd() == 200 ? 201 : 200;  // a dup2 onto itself would keep CLOEXEC
+    posix_spawn_file_actions_adddup2(&fa, lock->fd(), child_fd);
+    const std::string handed = DirectoryLock::child_environment(child_fd);
+    const std::string name = handed.substr(0, handed.find('=') + 1);
+    for (char** e = environ; *e; ++e)
+      if (std::string_view(*e).substr(0, name.size()) != name) env.emplace_back(*e);
+    env.push_back(handed);
+  }
+  std::vector<char*> argv, envp;
   for (auto& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);
+  for (auto& e : env) envp.push_back(e.data());
+  envp.push_back(nullptr);
   pid_t pid = 0;
-  const int rc = posix_spawn(&pid, opt.runner.c_str(), &fa, nullptr, argv.data(), environ);
+  const int rc = posix_spawn(&pid, opt.runner.c_str(), &fa, nullptr, argv.data(),
+                             lock->held() ? envp.data() : environ);
   posix_spawn_file_actions_destroy(&fa);
   if (rc != 0) {
     mark_run_finished(run.dir);  // nothing ran: back to pending
@@ -393,7 +461,10 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
     if (st == RunState::kComplete) {
       ++sum.skipped;
-      log(tag + ": done, skipped");
+      const std::string change = config_change(r, opt.registry);
+      log(tag + (change.empty() ? ": done, skipped"
+                                : ": done, but the sweep now asks for another config (" + change +
+                                      "); kept: delete " + r.dir + " to rerun it"));
     } else if (const std::string holder = directory_lock_holder(r.dir); !holder.empty()) {
       ++sum.skipped;  // another sweep or `crpgs train` is on it
       log(tag + ": running in another process (" + holder + "), skipped");
@@ -441,8 +512,8 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     }
     while (!stopping && !todo.empty() && active.size() < workers) {
       const SweepRun& r = *pick();
-      std::string skipped;
-      auto pid = launch(r, opt, &skipped);
+      std::string skipped, note;
+      auto pid = launch(r, opt, &skipped, &note);
       if (pid.ok() && pid.value() == 0) {
         ++sum.skipped;
         log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": " + skipped);
@@ -456,7 +527,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
         continue;
       }
       log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": started (logs in " +
-          r.dir + ")");
+          r.dir + ")" + note);
       active.push_back({pid.value(), &r});
     }
     if (active.empty()) continue;
@@ -536,8 +607,11 @@ std::string slurm_script(const SweepSpec& spec, const std::vector<int>& indices,
   if (!spec.resources.time.empty()) s += "#SBATCH --time=" + spec.resources.time + "\n";
   if (!spec.resources.partition.empty())
     s += "#SBATCH --partition=" + spec.resources.partition + "\n";
-  s += "#SBATCH --output=" + runs_dir + "/slurm/%A_%a.out\n";
-  s += "#SBATCH --chdir=" + cwd + "\n";
+  // Quoted for sbatch's directive parser; '%' starts a file-name pattern in --output.
+  std::string out_path;
+  for (char c : runs_dir) out_path += c == '%' ? std::string("%%") : std::string(1, c);
+  s += "#SBATCH --output=\"" + out_path + "/slurm/%A_%a.out\"\n";
+  s += "#SBATCH --chdir=\"" + cwd + "\"\n";
   s += "set -eu\n";
   s += "exec " + shell_quote(crpgs_exe) + " sweep " + shell_quote(sweep_file) + " -o " +
        shell_quote(runs_dir) + " --run-index \"$SLURM_ARRAY_TASK_ID\"\n";

@@ -98,6 +98,12 @@ StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* 
 /// and RUN/run.json (id, method, dataset, rate, overrides), atomically.
 Status prepare_run(const SweepRun& run, const ComponentRegistry* registry);
 
+/// How the config the run directory was prepared with (RUN/config.yaml, resolved by this build)
+/// differs from the one the sweep builds now: "" when the same (or never prepared), else up to 3
+/// "key: old -> new" items. A finished run whose sweep changed is kept, not rerun: the user
+/// decides, as the results may be wanted.
+std::string config_change(const SweepRun& run, const ComponentRegistry* registry);
+
 enum class RunState { kPending, kComplete, kInterrupted };
 /// kComplete: metrics.json readable and no `.running` marker. kInterrupted: a marker was left
 /// behind (the run or the sweep was killed). kPending otherwise.
