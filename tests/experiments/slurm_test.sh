@@ -136,6 +136,13 @@ echo "$out"
 job=$(echo "$out" | sed -n 's/^submitted Slurm job array \([0-9]*\).*/\1/p')
 [ -n "$job" ] || { echo "FAIL: no job id in the output"; exit 1; }
 grep -q -- '--array=0-5' "$D/runs/sweep.sbatch" || { echo "FAIL: sbatch script"; cat "$D/runs/sweep.sbatch"; exit 1; }
+# The tasks read a copy of the sweep file taken at submission: editing the file while the array
+# waits (here: a new first grid value, which shifts every index) must not change what they run.
+frozen=$(sed -n "s|.* sweep '\([^']*\)' -o .*|\1|p" "$D/runs/sweep.sbatch")
+case "$frozen" in "$D/runs/slurm/sweep-"*.yaml) ;; *) echo "FAIL: tasks read '$frozen'"; exit 1 ;; esac
+cmp -s "$frozen" "$D/sweep.yaml" || { echo "FAIL: $frozen is not the submitted sweep file"; exit 1; }
+cp "$D/sweep.yaml" "$D/sweep.submitted.yaml"
+sed -i 's/\[0.1, 0.2, 0.4\]/[0.05, 0.1, 0.2, 0.4]/' "$D/sweep.yaml"
 
 # Wait for the array to leave the queue (bounded).
 for _ in $(seq 300); do
@@ -147,6 +154,8 @@ done
 n=$(find "$D/runs" -name metrics.json | wc -l)
 [ "$n" = 6 ] || { show_logs; ls -R "$D/runs"; cat "$D"/runs/slurm/*.out; echo "FAIL: $n of 6 runs have metrics.json"; exit 1; }
 grep -q "in job $job" "$D/runs/synth/alpha/lambda_dssim-0.1/stdout.log" || { echo "FAIL: run log does not show the Slurm job"; exit 1; }
+[ ! -e "$D/runs/synth/alpha/lambda_dssim-0.05" ] || { echo "FAIL: a task ran the edited sweep file"; exit 1; }
+mv "$D/sweep.submitted.yaml" "$D/sweep.yaml"
 
 # A second submission has nothing left to do.
 again=$(timeout 60 "$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
