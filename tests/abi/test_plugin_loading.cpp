@@ -2,6 +2,7 @@
 /// @brief Broken plugins are rejected with their specific reason and never crash the host.
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <string>
 
 #include "crpgs/registry.h"
@@ -81,6 +82,20 @@ TEST(PluginLoading, DirectoryScanRecordsEveryRejection) {
   EXPECT_EQ(r.components().size(), 2u);
   EXPECT_EQ(r.rejected().size(), 6u);
   for (const auto& x : r.rejected()) EXPECT_FALSE(x.reason.empty()) << x.path;
+}
+
+TEST(PluginLoading, ADirectoryThatCannotBeReadIsReported) {
+  // Absent directories are normal (an install dir never installed to); one whose listing fails
+  // hides plugins, so it is named. Tests often run as root, whom permissions do not stop: a path
+  // through a regular file fails for everyone.
+  const std::string file = std::string(CRPGS_TEST_PLUGIN_DIR) + "/../plugin_dir_is_a_file";
+  { std::ofstream(file) << "x"; }
+  ComponentRegistry r;
+  r.load_plugins({file + "/plugins", "/nonexistent/dir"});
+  ASSERT_EQ(r.rejected().size(), 1u);
+  EXPECT_NE(r.rejected()[0].reason.find("cannot read the directory: Not a directory"),
+            std::string::npos)
+      << r.rejected()[0].reason;
 }
 
 TEST(PluginLoading, ObjectsKeepTheirLibraryAlive) {

@@ -80,6 +80,18 @@ TEST(Schema, RejectsBrokenSchemas) {
   EXPECT_FALSE(Schema::parse("- {key: a, type: choice, default: x}").ok());  // no choices
   EXPECT_FALSE(Schema::parse("{not: a list}").ok());
   EXPECT_FALSE(Schema::parse("- [unclosed").ok());
+  // A plugin's schema is data from a shared library: malformed fields are refused, never thrown.
+  for (const char* bad :
+       {"- {key: [a], type: int, default: 1}", "- {key: a, type: {x: 1}, default: 1}",
+        "- {key: a, type: choice, default: x, choices: [[x]]}",
+        "- {key: a, type: int, default: 1, doc: {x: 1}}",
+        "- {key: a, type: int, default: 1, min_exclusive: maybe}",
+        "- {key: a, type: int, default: 1, min: 3, max: 2}",
+        "- {key: type, type: string, default: foo}"}) {
+    auto s = Schema::parse(bad);
+    ASSERT_FALSE(s.ok()) << bad;
+    EXPECT_EQ(s.status().message().rfind("schema: ", 0), 0u) << s.status().message();
+  }
 }
 
 TEST(Config, ResolvesDefaultsAndComponents) {
@@ -135,6 +147,59 @@ TEST(Config, WrongTypeAndOutOfRange) {
       << st.message();
 }
 
+TEST(Config, IntegersAreDecimalAndHugeOnesOutOfRange) {
+  auto resolved = [](const std::string& text) {
+    auto cfg = Config::from_string(text, "test.yaml");
+    return cfg.ok() ? cfg->resolve(test_registry()) : StatusOr<Config>(cfg.status());
+  };
+  auto r = resolved("train: {iterations: 010}\n");
+  ASSERT_TRUE(r.ok()) << r.status().to_string();
+  EXPECT_EQ(r->section("train")["iterations"].as<int>(), 10);  // not octal 8
+  EXPECT_NE(resolved("train: {iterations: 0x10}\n").status().message().find("not an integer"),
+            std::string::npos);
+  EXPECT_NE(resolved("train: {iterations: 99999999999999999999999}\n")
+                .status()
+                .message()
+                .find("'99999999999999999999999' is out of range"),
+            std::string::npos);
+}
+
+TEST(Config, KeysGivenTwiceAndSecondDocumentsAreRefused) {
+  // yaml-cpp would keep the first section and the last key: neither is what a reader expects.
+  Status st = resolve_text("train: {iterations: 5}\ndataset: {}\ntrain: {seed: 3}\n");
+  EXPECT_NE(st.message().find("test.yaml:3:1: train: key given twice (first at line 1)"),
+            std::string::npos)
+      << st.message();
+  st = resolve_text("train:\n  iterations: 5\n  iterations: 7\n");
+  EXPECT_NE(st.message().find("test.yaml:3:3: iterations: key given twice (first at line 2)"),
+            std::string::npos)
+      << st.message();
+  st = resolve_text("train: {seed: 1}\n---\ntrain: {seed: 2}\n");
+  EXPECT_NE(st.message().find("a second YAML document"), std::string::npos) << st.message();
+}
+
+TEST(Config, AliasesThatExpandExponentiallyAreRefusedQuickly) {
+  std::string text = "a0: &a0 [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]\n";
+  for (int i = 1; i <= 9; ++i) {
+    text += "a" + std::to_string(i) + ": &a" + std::to_string(i) + " [";
+    for (int k = 0; k < 10; ++k) text += (k ? ", *a" : "*a") + std::to_string(i - 1);
+    text += "]\n";
+  }
+  Status st = Config::from_string(text, "bomb.yaml").status();  // 10^10 values if expanded
+  EXPECT_NE(st.message().find("bomb.yaml: more than 100000 values once its aliases are expanded"),
+            std::string::npos)
+      << st.message();
+  // A few aliases are fine.
+  EXPECT_TRUE(resolve_text("train: &t {seed: 4}\n").ok());
+}
+
+TEST(Config, SetKeysEndingInADotAreRefused) {
+  auto cfg = Config::from_string("train: {seed: 1}\n", "t.yaml");
+  ASSERT_TRUE(cfg.ok());
+  Status st = cfg->apply_override("train.=1");
+  EXPECT_NE(st.message().find("--set 'train.=1': empty key"), std::string::npos) << st.message();
+}
+
 TEST(Config, UnknownTypeListsAvailableAndSearchPath) {
   Status st = resolve_text("features:\n  type: sfx\n");
   ASSERT_FALSE(st.ok());
@@ -186,6 +251,15 @@ TEST(Config, RelativeDatasetPathsAreMadeAbsoluteAgainstTheGivenBase) {
   EXPECT_EQ(cfg->section("dataset")["path"].as<std::string>(), "/work/here/data/fern");
   ASSERT_TRUE(make_dataset_path_absolute(cfg.value(), "/elsewhere").ok());  // absolute: kept
   EXPECT_EQ(cfg->section("dataset")["path"].as<std::string>(), "/work/here/data/fern");
+  // The path is YAML-parsed again on the way in: '#' and ': ' must survive it.
+  for (const std::string odd : {"data #2", "a: b", "it's \"here\""}) {
+    auto c = Config::from_string("train: {seed: 1}\n", "t.yaml");
+    YAML::Emitter quoted;
+    quoted << YAML::DoubleQuoted << odd;
+    ASSERT_TRUE(c->apply_override(std::string("dataset.path=") + quoted.c_str()).ok());
+    ASSERT_TRUE(make_dataset_path_absolute(c.value(), "/run #3").ok());
+    EXPECT_EQ(c->section("dataset")["path"].as<std::string>(), "/run #3/" + odd);
+  }
   auto none = Config::from_string("train: {threads: 1}\n", "t.yaml");
   ASSERT_TRUE(make_dataset_path_absolute(none.value(), "/x").ok());
   EXPECT_FALSE(none->section("dataset").IsDefined());
@@ -325,6 +399,13 @@ TEST(ConfigBase, RefusesCyclesMissingFilesAndBadValues) {
   EXPECT_NE(st.message().find("missing.yaml:2:7: base: cannot open config file"), std::string::npos)
       << st.message();
   EXPECT_NE(st.message().find("nowhere.yaml"), std::string::npos) << st.message();
+  // Not a file: a directory read as an empty config would train on the defaults, /dev/zero
+  // would never end.
+  st = Config::load_file(dir).status();
+  EXPECT_NE(st.message().find("not a config file (a directory or device)"), std::string::npos)
+      << st.message();
+  st = Config::load_file("/dev/zero").status();
+  EXPECT_NE(st.message().find("not a config file"), std::string::npos) << st.message();
   st = Config::load_file(dir + "number.yaml").status();
   EXPECT_NE(st.message().find("number.yaml:1:7: base: expected a config file or a list"),
             std::string::npos)

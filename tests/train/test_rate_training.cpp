@@ -189,6 +189,29 @@ TEST(RateTraining, SetupFromConfigAttachesTheRatePath) {
                              test::rate_registry(), SetupOptions());
   ASSERT_FALSE(half.ok());
   EXPECT_NE(half.status().message().find("context"), std::string::npos);
+  // Grid contexts and link strategies are one plugin kind: each in the other's section is
+  // refused, not trained with no links (or failing later without a word of the config).
+  if (test::rate_registry().find(CRPGS_KIND_CONTEXT, "link_random")) {
+    const std::string base =
+        "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+        "synthetic_views: 6}\ntrain: {threads: 1}\nentropy: {type: gaussian}\n";
+    for (const auto& [text, want] : std::vector<std::pair<std::string, std::string>>{
+             {"context: {type: link_random}\n",
+              "swapped.yaml: context.type: 'link_random' is a link strategy; it belongs under "
+              "`links:`"},
+             {"context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+              "links: {type: hash_grid}\n",
+              "swapped.yaml: links.type: 'hash_grid' is a grid context; it belongs under "
+              "`context:`"}}) {
+      auto c = Config::from_string(base + text, "swapped.yaml");
+      auto swapped = setup_training(c->resolve(test::rate_registry()).value(),
+                                    test::rate_registry(), SetupOptions());
+      ASSERT_FALSE(swapped.ok()) << text;
+      EXPECT_EQ(swapped.status().message(), want);
+    }
+  } else {
+    std::cout << "[ SKIPPED  ] the swapped-sections check: link_random plugin not built\n";
+  }
 }
 
 // The components' random initial values (hash table, mlp_grid) follow train.seed: the same seed

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <utility>
 
@@ -15,28 +16,49 @@
 namespace crpgs {
 namespace {
 
-// Every map key must be a plain scalar: the schemas, merging and messages read keys as text.
-Status check_keys(const YAML::Node& n, const std::string& name) {
+// Aliases let a few lines stand for an exponential tree; no config comes near this.
+constexpr size_t kMaxConfigNodes = 100000;
+constexpr uintmax_t kMaxConfigBytes = 16u << 20;
+
+// Every map key must be a plain scalar and appear once: the schemas, merging and messages read
+// keys as text, and YAML parsers disagree on which of two equal keys wins.
+Status check_keys(const YAML::Node& n, const std::string& name, size_t* visited) {
+  if (++*visited > kMaxConfigNodes)
+    return Status(StatusCode::kInvalidConfig,
+                  name + ": more than " + std::to_string(kMaxConfigNodes) +
+                      " values once its aliases are expanded; not a config");
   if (n.IsSequence())
-    for (const auto& e : n) CRPGS_RETURN_IF_ERROR(check_keys(e, name));
+    for (const auto& e : n) CRPGS_RETURN_IF_ERROR(check_keys(e, name, visited));
   if (!n.IsMap()) return OkStatus();
+  std::map<std::string, int> first_line;
   for (const auto& kv : n) {
     if (!kv.first.IsScalar())
       return Status(StatusCode::kInvalidConfig,
                     SourceRef{name, {}}.describe(kv.first) + ": a key must be a plain name");
-    CRPGS_RETURN_IF_ERROR(check_keys(kv.second, name));
+    const auto [it, fresh] = first_line.emplace(kv.first.Scalar(), kv.first.Mark().line + 1);
+    if (!fresh)
+      return Status(StatusCode::kInvalidConfig,
+                    SourceRef{name, {}}.describe(kv.first) + ": " + kv.first.Scalar() +
+                        ": key given twice (first at line " + std::to_string(it->second) + ")");
+    CRPGS_RETURN_IF_ERROR(check_keys(kv.second, name, visited));
   }
   return OkStatus();
 }
 
 StatusOr<YAML::Node> parse_yaml(const std::string& text, const std::string& name) {
   try {
-    YAML::Node root = YAML::Load(text);
+    const std::vector<YAML::Node> docs = YAML::LoadAll(text);
+    if (docs.size() > 1)
+      return Status(StatusCode::kInvalidConfig,
+                    SourceRef{name, {}}.describe(docs[1]) +
+                        ": a second YAML document (after `---`); a config is one document");
+    YAML::Node root = docs.empty() ? YAML::Node() : docs[0];
     if (root.IsNull()) return YAML::Node(YAML::NodeType::Map);
     if (!root.IsMap())
       return Status(StatusCode::kInvalidConfig,
                     name + ":1:1: a config must be a YAML map of sections (dataset, train, ...)");
-    CRPGS_RETURN_IF_ERROR(check_keys(root, name));
+    size_t visited = 0;
+    CRPGS_RETURN_IF_ERROR(check_keys(root, name, &visited));
     return root;
   } catch (const YAML::ParserException& e) {
     return Status(StatusCode::kInvalidConfig, name + ":" + std::to_string(e.mark.line + 1) + ":" +
@@ -113,10 +135,20 @@ struct LoadedTree {
 
 // `chain`: the files being loaded, outermost first, to refuse a config that inherits itself.
 StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>& chain) {
+  std::error_code ec;
+  const auto status = fs::status(path, ec);
+  if (ec || !fs::exists(status))
+    return Status(StatusCode::kIoError, "cannot open config file " + path +
+                                            (ec ? ": " + ec.message() : ": no such file"));
+  if (!fs::is_regular_file(status))
+    return Status(StatusCode::kIoError, path + ": not a config file (a directory or device)");
+  if (fs::file_size(path, ec) > kMaxConfigBytes)
+    return Status(StatusCode::kIoError, path + ": larger than 16 MiB; not a config");
   std::ifstream in(path);
   if (!in) return Status(StatusCode::kIoError, "cannot open config file " + path);
   std::stringstream ss;
   ss << in.rdbuf();
+  if (in.bad()) return Status(StatusCode::kIoError, "cannot read config file " + path);
   LoadedTree t;
   CRPGS_ASSIGN_OR_RETURN(t.root, parse_yaml(ss.str(), path));
   const fs::path dir = fs::absolute(path).parent_path();
@@ -140,7 +172,6 @@ StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>
       std::any_of(names.begin(), names.end(), [](const YAML::Node& n) { return !n.IsScalar(); }))
     return Status(StatusCode::kInvalidConfig,
                   src.describe(base) + ": base: expected a config file or a list of them");
-  std::error_code ec;
   chain.push_back(fs::weakly_canonical(path, ec).string());
   if (ec) return Status(StatusCode::kIoError, path + ": " + ec.message());
   // Later bases win: merge the last one first, since merging only fills in missing keys.
@@ -216,6 +247,8 @@ Status Config::apply_override(const std::string& assignment) {
       return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
     keys.push_back(k);
   }
+  if (path.back() == '.')  // getline drops the empty last part
+    return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
   YAML::Node value;
   try {
     value = without_marks(YAML::Load(text));
@@ -321,7 +354,10 @@ Status make_dataset_path_absolute(Config& cfg, const std::string& base) {
   if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
   const std::string p = ds["path"].Scalar();
   if (p.empty() || fs::path(p).is_absolute()) return OkStatus();
-  return cfg.apply_override("dataset.path=" + (fs::path(base) / p).lexically_normal().string());
+  // Quoted, as the path is parsed as YAML again: "data #2" or "a: b" must stay as they are.
+  YAML::Emitter quoted;
+  quoted << YAML::DoubleQuoted << (fs::path(base) / p).lexically_normal().string();
+  return cfg.apply_override(std::string("dataset.path=") + quoted.c_str());
 }
 
 Status Config::save(const std::string& path) const {

@@ -169,16 +169,30 @@ void ComponentRegistry::load_plugins(const std::vector<std::string>& dirs) {
     const std::string canon = fs::weakly_canonical(dir, ec).string();
     if (std::find(searched_.begin(), searched_.end(), canon) != searched_.end()) continue;
     searched_.push_back(canon);
-    if (!fs::is_directory(canon, ec)) continue;
-    std::vector<std::string> files;
-    auto collect = [&](const fs::path& d) {
-      for (const auto& e : fs::directory_iterator(d, ec))
-        if (e.is_regular_file(ec) && e.path().extension() == ".so")
-          files.push_back(e.path().string());
+    if (!fs::is_directory(canon, ec)) {
+      // An absent directory is normal (the install dir of a build that was not installed); one
+      // that is there but cannot be read hides its plugins, so it is reported.
+      if (ec && ec != std::errc::no_such_file_or_directory)
+        rejected_.push_back({canon, "cannot read the directory: " + ec.message()});
+      continue;
+    }
+    std::vector<std::string> files, subdirs;
+    // Lists `d`: its .so files, and (for the top level) its subdirectories.
+    auto list = [&](const fs::path& d, std::vector<std::string>* dirs_out) {
+      std::error_code list_ec;
+      for (fs::directory_iterator it(d, list_ec), end; !list_ec && it != end;
+           it.increment(list_ec)) {
+        std::error_code type_ec;
+        if (it->is_regular_file(type_ec) && it->path().extension() == ".so")
+          files.push_back(it->path().string());
+        else if (dirs_out && it->is_directory(type_ec))
+          dirs_out->push_back(it->path().string());
+      }
+      if (list_ec)
+        rejected_.push_back({d.string(), "cannot read the directory: " + list_ec.message()});
     };
-    collect(canon);
-    for (const auto& e : fs::directory_iterator(canon, ec))
-      if (e.is_directory(ec)) collect(e.path());
+    list(canon, &subdirs);
+    for (const auto& d : subdirs) list(d, nullptr);
     std::sort(files.begin(), files.end());
     for (const auto& f : files) {
       const std::string cf = fs::weakly_canonical(f, ec).string();
@@ -218,6 +232,7 @@ StatusOr<std::shared_ptr<void>> ComponentRegistry::create_raw(crpgs_kind kind,
   char err[2048] = {0};
   void* obj = nullptr;
   const int rc = info->descriptor->create(e.c_str(), &args, &obj, err, sizeof(err));
+  err[sizeof(err) - 1] = 0;  // a plugin that filled the buffer without terminating it
   if (rc != CRPGS_PLUGIN_OK || !obj) {
     return Status(StatusCode::kInvalidConfig,
                   std::string(kind_name(kind)) + " '" + type + "' (" + info->path +

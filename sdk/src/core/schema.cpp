@@ -30,13 +30,17 @@ std::string fmt_number(double v) {
   return os.str();
 }
 
-bool parse_int(const YAML::Node& n, long long* out) {
+/// Decimal only: "010" is ten, not octal eight. `*overflow`: a valid integer beyond long long.
+bool parse_int(const YAML::Node& n, long long* out, bool* overflow = nullptr) {
   if (!n.IsScalar()) return false;
+  const std::string s = n.Scalar();
   try {
-    const std::string s = n.Scalar();
     size_t pos = 0;
-    *out = std::stoll(s, &pos, 0);
+    *out = std::stoll(s, &pos, 10);
     return pos == s.size();
+  } catch (const std::out_of_range&) {
+    if (overflow) *overflow = s.find_first_not_of("+-0123456789") == std::string::npos;
+    return false;
   } catch (...) {
     return false;
   }
@@ -73,7 +77,9 @@ bool check_value(const ParamSpec& p, const YAML::Node& v, YAML::Node* out, std::
   auto scalar_number = [&](const YAML::Node& n, bool integer, YAML::Node* o) {
     if (integer) {
       long long x;
-      if (!parse_int(n, &x)) return *why = "not an integer", false;
+      bool overflow = false;
+      if (!parse_int(n, &x, &overflow))
+        return *why = overflow ? "out of range" : "not an integer", false;
       if (!in_range(p, double(x))) return *why = "out of range", false;
       *o = YAML::Node(x);
     } else {
@@ -172,11 +178,20 @@ StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
   if (root.IsNull()) return Schema();
   if (!root.IsSequence()) return bad("must be a YAML list of parameter maps");
   std::vector<ParamSpec> params;
+  // A plugin's text: every field read as what it must be, never trusted to convert.
+  auto text = [](const YAML::Node& n, std::string* out) {
+    if (!n.IsScalar()) return false;
+    *out = n.Scalar();
+    return true;
+  };
   for (const auto& e : root) {
     if (!e.IsMap() || !e["key"] || !e["type"]) return bad("each entry needs `key` and `type`");
     ParamSpec p;
-    p.key = e["key"].as<std::string>();
-    const std::string tn = e["type"].as<std::string>();
+    std::string tn;
+    if (!text(e["key"], &p.key) || p.key.empty()) return bad("a parameter's `key` must be a name");
+    if (p.key == "type")
+      return bad("parameter 'type': reserved (the `type:` of the component block)");
+    if (!text(e["type"], &tn)) return bad("parameter '" + p.key + "': `type` must be a name");
     bool known = false;
     for (const auto& t : kTypeNames)
       if (tn == t.name) p.type = t.type, known = true;
@@ -190,15 +205,22 @@ StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
       if (!parse_float(e["max"], &d)) return bad("parameter '" + p.key + "': bad max");
       p.max = d;
     }
-    if (e["min_exclusive"]) p.min_exclusive = e["min_exclusive"].as<bool>(false);
+    if (p.min && p.max && *p.min > *p.max) return bad("parameter '" + p.key + "': min > max");
+    if (e["min_exclusive"] && !parse_bool(e["min_exclusive"], &p.min_exclusive))
+      return bad("parameter '" + p.key + "': min_exclusive must be true or false");
     if (e["choices"]) {
       if (!e["choices"].IsSequence())
         return bad("parameter '" + p.key + "': choices must be a list");
-      for (const auto& c : e["choices"]) p.choices.push_back(c.as<std::string>());
+      for (const auto& c : e["choices"]) {
+        std::string choice;
+        if (!text(c, &choice)) return bad("parameter '" + p.key + "': a choice must be a name");
+        p.choices.push_back(choice);
+      }
     }
     if (p.type == ParamType::kChoice && p.choices.empty())
       return bad("parameter '" + p.key + "': choice without choices");
-    if (e["doc"]) p.doc = e["doc"].as<std::string>();
+    if (e["doc"] && !text(e["doc"], &p.doc))
+      return bad("parameter '" + p.key + "': doc must be text");
     if (!e["default"]) return bad("parameter '" + p.key + "': missing default");
     std::string why;
     if (!check_value(p, e["default"], &p.default_value, &why))

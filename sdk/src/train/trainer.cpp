@@ -830,11 +830,22 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
                         (c ? "context" : "entropy") + "` is set");
     if (c) {
       args.coded_dim = int32_t(features->coded_dim());
+      // Grid contexts and link strategies are one plugin kind; each section takes one of them.
+      auto misplaced = [&](const char* section, const std::string& type, const char* is,
+                           const char* belongs) {
+        return Status(StatusCode::kInvalidConfig, resolved.file() + ": " + section + ".type: '" +
+                                                      type + "' is " + is + "; it belongs under `" +
+                                                      belongs + ":`");
+      };
       CRPGS_ASSIGN_OR_RETURN(rate.context, create_component<ContextModel>(registry, c, args));
+      if (rate.context->output_dim() == 0)
+        return misplaced("context", rate.context->type_name(), "a link strategy", "links");
       CRPGS_ASSIGN_OR_RETURN(rate.entropy, create_component<EntropyModel>(registry, e, args));
       CRPGS_ASSIGN_OR_RETURN(rate.options, rate_options_from_config(resolved));
       if (const YAML::Node l = resolved.section("links")) {
         CRPGS_ASSIGN_OR_RETURN(rate.links, create_component<ContextModel>(registry, l, args));
+        if (rate.links->output_dim() != 0)
+          return misplaced("links", rate.links->type_name(), "a grid context", "context");
         CRPGS_ASSIGN_OR_RETURN(rate.link_options,
                                link_options_from_config(resolved, train_options.schedule));
       }
