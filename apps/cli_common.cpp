@@ -112,6 +112,22 @@ Status check_dataset(const Config& c) {
                     "with --set dataset.path=DIR");
 }
 
+Status check_output_is_not_input(const std::string& out, const std::string& source) {
+  std::error_code ec;
+  if (fs::is_directory(out, ec))
+    return Status(StatusCode::kInvalidArgument,
+                  out + " is a directory; -o names the file to write");
+  if (fs::equivalent(out, source, ec))
+    return Status(StatusCode::kInvalidArgument, "-o " + out + " is the input itself");
+  if (fs::is_directory(source, ec) && fs::equivalent(fs::absolute(out).parent_path(), source, ec))
+    for (const char* f : {"checkpoint.pt", "config.yaml", kDecodedModelFile, "metrics.json",
+                          "run.json", "scene.crpgs"})
+      if (fs::path(out).filename() == f)
+        return Status(StatusCode::kInvalidArgument, "-o " + out + " would replace the " + f +
+                                                        " of " + source + "; pick another name");
+  return OkStatus();
+}
+
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads) {
   ModelSource s;

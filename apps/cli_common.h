@@ -45,6 +45,18 @@ int report_error(const Status& st);
 /// kNotFound naming dataset.path, and how to point elsewhere (--set dataset.path=DIR).
 Status check_dataset(const Config& c);
 
+/// The `--threads N` option of the commands that compute (0 = all cores).
+inline CLI::Option* add_threads_option(CLI::App* cmd, int& threads) {
+  return cmd->add_option("--threads", threads, "CPU threads; 0 = all cores")
+      ->check(CLI::Number)
+      ->check(CLI::Range(0, 1024));
+}
+
+/// Refuses an output that would replace the command's input: `source` itself, or a file of the
+/// run or decode directory `source` (checkpoint, config, model, metrics). Also an output path
+/// that is a directory.
+Status check_output_is_not_input(const std::string& out, const std::string& source);
+
 /// setup_training, then the dataset's warnings (ignored lens distortion, no SfM points, ...) on
 /// stderr: the SDK only collects them.
 StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,

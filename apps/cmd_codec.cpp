@@ -119,10 +119,16 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   auto ct = coding::ContainerReader::read_file(path);
   if (!ct.ok()) return report_error(ct.status());
   const double total = double(ct->file_size);
-  std::printf("%s: %llu bytes (%.4f MiB), container %u.%u, config hash %s, %zu sections\n\n",
-              path.c_str(), static_cast<unsigned long long>(ct->file_size), total / 1048576.0,
-              ct->header.major, ct->header.minor, hex64(ct->header.config_hash).c_str(),
-              ct->sections.size());
+  // The model's format (what decides how a file decodes) is the version of its HEAD section.
+  const coding::Section* head = ct->find("HEAD");
+  const std::string format = head ? std::to_string(head->component_major) + "." +
+                                        std::to_string(head->component_minor) + ", "
+                                  : std::string();
+  std::printf(
+      "%s: %llu bytes (%.4f MiB), format %scontainer %u.%u, config hash %s, %zu sections\n\n",
+      path.c_str(), static_cast<unsigned long long>(ct->file_size), total / 1048576.0,
+      format.c_str(), ct->header.major, ct->header.minor, hex64(ct->header.config_hash).c_str(),
+      ct->sections.size());
   std::vector<std::vector<std::string>> rows = {
       {"SECTION", "CATEGORY", "COMPONENT", "VERSION", "BYTES", "%"}};
   std::map<std::string, uint64_t> by_category;
@@ -167,7 +173,8 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
     auto bytes = read_file_bytes(path);
     if (!bytes.ok()) return report_error(bytes.status());
     auto dec = decode_model(bytes.value(), r);
-    if (!dec.ok()) return report_error(dec.status());
+    if (!dec.ok())
+      return report_error(Status(dec.status().code(), path + ": " + dec.status().message()));
     const auto& m = dec->model;
     std::printf(
         "\nDecoded: %lld anchors, %lld offsets per anchor (%lld active), feature width %lld, "
@@ -197,8 +204,10 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
 
 int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out) {
   ComponentRegistry r = load_registry(g);
+  if (Status st = check_output_is_not_input(out, run_dir); !st.ok()) return report_error(st);
   auto cfg = load_config(run_dir + "/config.yaml", g, r);
   if (!cfg.ok()) return report_error(cfg.status());
+  if (Status st = check_dataset(cfg.value()); !st.ok()) return report_error(st);
   auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
   if (!trainer.ok()) return report_error(trainer.status());
   if (trainer.value()->iteration() == 0)
@@ -209,7 +218,8 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
   return 0;
 }
 
-/// Decodes a bitstream and evaluates it on the test views of the dataset its config names.
+/// Decodes a bitstream (or loads a decode directory) and evaluates it on the test views of the
+/// dataset its config names.
 int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
   ComponentRegistry r = load_registry(g);
   // The dataset (and rasterizer) as the config that trained this model set them up.
@@ -218,9 +228,13 @@ int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::s
   auto ev =
       evaluate_views(src->model(), src->setup->rasterizer(), src->setup->dataset().test, png_dir);
   if (!ev.ok()) return report_error(ev.status());
-  std::printf("%s: %llu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(),
-              static_cast<unsigned long long>(src->file_bytes),
-              static_cast<long long>(src->model().num_anchors()), src->load_seconds);
+  if (src->kind == "bitstream")
+    std::printf("%s: %llu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(),
+                static_cast<unsigned long long>(src->file_bytes),
+                static_cast<long long>(src->model().num_anchors()), src->load_seconds);
+  else
+    std::printf("%s: decode directory, %lld anchors, loaded in %.2f s\n", path.c_str(),
+                static_cast<long long>(src->model().num_anchors()), src->load_seconds);
   print_eval(ev.value());
   return 0;
 }
@@ -241,6 +255,9 @@ void add_codec_commands(CLI::App& app, GlobalOptions& g) {
                                  "configs), decode it back and check it");
   enc->add_option("RUN_DIR", run_dir, "directory written by `crpgs train`")->required();
   enc->add_option("-o,--output", out, "bitstream file")->required();
+  enc->add_option("--set", g.sets,
+                  "override a key of the run's config (e.g. dataset.path=DIR when the dataset "
+                  "has moved)");
   enc->callback([&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out)); });
 
   auto* cmd = app.add_subcommand("info",

@@ -27,7 +27,8 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
                                   const std::string& png_dir) {
   torch::NoGradGuard no_grad;
   if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no test views");
-  if (!png_dir.empty()) fs::create_directories(png_dir);
+  if (std::error_code ec; !png_dir.empty() && !fs::create_directories(png_dir, ec) && ec)
+    return Status(StatusCode::kIoError, "cannot create " + png_dir + ": " + ec.message());
   RenderSettings settings;
   settings.background = background;
   EvalResult res;
@@ -58,6 +59,7 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
 
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
                    int degree, int directions, double view_weight, int threads) {
+  if (Status st = check_output_is_not_input(out, source); !st.ok()) return report_error(st);
   ComponentRegistry r = load_registry(g);
   auto src = load_model_source(g, r, source, resolve_threads(threads));
   if (!src.ok()) return report_error(src.status());
@@ -113,6 +115,10 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
 
 int import_command(const GlobalOptions& g, const std::string& path, const std::string& config,
                    const std::string& png_dir, int threads) {
+  if (std::error_code ec;
+      !png_dir.empty() && fs::exists(png_dir, ec) && !fs::is_directory(png_dir, ec))
+    return report_error(Status(StatusCode::kInvalidArgument,
+                               png_dir + " is not a directory (-o names where the PNGs go)"));
   ComponentRegistry r = load_registry(g);
   set_compute_threads(threads);
   auto ply = read_ply(path);
@@ -156,7 +162,7 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
                  "share of the SH fit on the training cameras' own views (the rest on the sphere "
                  "of directions); 0 fits the sphere alone")
       ->check(CLI::Range(0.0, 0.99));
-  ex->add_option("--threads", threads, "CPU threads; 0 = all cores")->check(CLI::NonNegativeNumber);
+  add_threads_option(ex, threads);
   ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
   ex->callback([&g] {
     throw CLI::RuntimeError(
@@ -171,7 +177,7 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
   im->add_option("-c,--config", config, "config whose dataset (and rasterizer) is used")
       ->required();
   im->add_option("-o,--output", png_dir, "write the renders as PNGs here");
-  im->add_option("--threads", threads, "CPU threads; 0 = all cores")->check(CLI::NonNegativeNumber);
+  add_threads_option(im, threads);
   im->add_option("--set", g.sets, "override a config key, e.g. --set dataset.path=DIR");
   im->callback([&g] { throw CLI::RuntimeError(import_command(g, ply, config, png_dir, threads)); });
 }

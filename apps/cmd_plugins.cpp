@@ -49,7 +49,12 @@ int describe(const GlobalOptions& g, const std::string& type, const std::string&
   }
   if (!shown) {
     std::vector<std::string> types;
-    for (const auto& c : r.components()) types.push_back(c.type);
+    for (const auto& c : r.components()) {
+      if (c.type == type)  // there, but of another kind than --kind asked for
+        return report_error(Status(StatusCode::kNotFound, "'" + type + "' is of kind " +
+                                                              kind_name(c.kind) + ", not " + kind));
+      types.push_back(c.type);
+    }
     return report_error(Status(StatusCode::kNotFound, "no component of type '" + type + "'" +
                                                           did_you_mean(type, types) +
                                                           " (available: " + join(types) + ")"));
@@ -70,8 +75,9 @@ void add_plugin_commands(CLI::App& app, GlobalOptions& g) {
   static std::string type, kind;
   desc->add_option("TYPE", type, "component type, e.g. cpu, identity, hash_grid")->required();
   desc->add_option("--kind", kind,
-                   "entropy | context | features | rasterizer (when a type name "
-                   "exists in several kinds)");
+                   "entropy | context | features | rasterizer, when a type name exists in "
+                   "several kinds (link strategies are of kind context)")
+      ->check(CLI::IsMember({"entropy", "context", "features", "rasterizer"}));
   desc->callback([&g] { throw CLI::RuntimeError(describe(g, type, kind)); });
 }
 

@@ -89,11 +89,19 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   auto bytes = read_file_bytes(path);
   if (!bytes.ok()) return report_error(bytes.status());
   auto dec = decode_model(bytes.value(), r);
-  if (!dec.ok()) return report_error(dec.status());
+  if (!dec.ok())
+    return report_error(Status(dec.status().code(), path + ": " + dec.status().message()));
   const double decode_s = seconds_since(t0);
   std::error_code ec;
+  // A training run's config.yaml (its dataset path, its kind of directory) is not to be replaced.
+  if (fs::exists(fs::path(out_dir) / "checkpoint.pt", ec))
+    return report_error(Status(StatusCode::kInvalidArgument,
+                               out_dir + " holds a training run (checkpoint.pt); decode into "
+                                         "another directory"));
   fs::create_directories(out_dir, ec);
-  if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
+  if (ec)
+    return report_error(
+        Status(StatusCode::kIoError, "cannot create " + out_dir + ": " + ec.message()));
   const std::string config_path = (fs::path(out_dir) / "config.yaml").string();
   const std::string model_path = (fs::path(out_dir) / kDecodedModelFile).string();
   t0 = Clock::now();
@@ -130,7 +138,9 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
   if (which != "train") splits.push_back({"test", &ds.test});
   std::error_code ec;
   fs::create_directories(out_dir, ec);
-  if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + out_dir));
+  if (ec)
+    return report_error(
+        Status(StatusCode::kIoError, "cannot create " + out_dir + ": " + ec.message()));
   torch::NoGradGuard no_grad;
   // A run with the rate path renders its quantised model (load_model_source): the bitstream's
   // rows in its canonical order, so the pixels equal those of the decoded file.
@@ -224,8 +234,7 @@ void add_render_commands(CLI::App& app, GlobalOptions& g) {
       "symbols, dequantised features/scaling/offsets, masks, MLPs, bounds, voxel size)");
   dec->add_option("FILE", path, "bitstream")->required();
   dec->add_option("-o,--output", out_dir, "output directory")->required();
-  dec->add_option("--threads", decode_threads, "CPU threads; 0 = all cores")
-      ->check(CLI::NonNegativeNumber);
+  add_threads_option(dec, decode_threads);
   dec->callback(
       [&g] { throw CLI::RuntimeError(decode_command(g, path, out_dir, decode_threads)); });
 
@@ -238,8 +247,7 @@ void add_render_commands(CLI::App& app, GlobalOptions& g) {
   ren->add_option("-o,--output", out_dir, "where the PNGs go")->required();
   ren->add_option("--views", views, "which views: test, train or all")
       ->check(CLI::IsMember({"test", "train", "all"}));
-  ren->add_option("--threads", render_threads, "CPU threads; 0 = all cores")
-      ->check(CLI::NonNegativeNumber);
+  add_threads_option(ren, render_threads);
   ren->add_option("--set", g.sets,
                   "override a key of the model's config, e.g. --set dataset.path=DIR");
   ren->callback(

@@ -159,6 +159,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   std::printf("sweep %s: %zu runs in %s\n", spec->name.c_str(), runs.size(), runs_dir.c_str());
   if (a.slurm) {
     std::vector<int> pending;
+    size_t running = 0;
     for (const auto& r : runs) {
       if (ex::run_state(r.dir) == ex::RunState::kComplete) continue;
       // Write (and validate) every config now rather than in the array tasks; not the config of
@@ -167,6 +168,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
       if (!holder.empty()) {
         std::printf("%s: running in another process (%s), not submitted\n", r.id.c_str(),
                     holder.c_str());
+        ++running;
         continue;
       }
       Status st = ex::build_run_config(r, &registry).status();
@@ -177,7 +179,8 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
       if (!st.ok()) return report_error(st);
       pending.push_back(r.index);
     }
-    std::printf("%zu finished, %zu to submit\n", runs.size() - pending.size(), pending.size());
+    std::printf("%zu finished, %zu running elsewhere, %zu to submit\n",
+                runs.size() - pending.size() - running, running, pending.size());
     if (pending.empty()) return 0;
     const std::string exe = ex::self_executable();
     const std::string runs_abs = fs::absolute(runs_dir).string();
@@ -239,13 +242,15 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
   cmd->add_option("SWEEP", a.file, "sweep file (YAML)")->required()->check(CLI::ExistingFile);
   cmd->add_option("-o,--output", a.out, "runs directory (default: the sweep file's 'output')");
   cmd->add_option("-j,--jobs", a.jobs, "runs at a time (default: the sweep file's 'workers')")
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::Number)
+      ->check(CLI::Range(1, 1024));
   cmd->add_flag("--slurm", a.slurm,
                 "submit the unfinished runs as a Slurm job array (sbatch; resources from the "
                 "sweep file) instead of running them here");
   cmd->add_option("--run-index", a.run_index,
                   "run only the run with this index (what each Slurm array task does)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Number)
+      ->check(CLI::Range(0, 1 << 30));
   cmd->add_flag("--status", a.status,
                 "show each run's state, progress (iteration, rate, ETA: from its log) or result, "
                 "and which waiting runs will start from a shared prefix; runs nothing");

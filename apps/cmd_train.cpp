@@ -57,7 +57,8 @@ class CliProgress final : public ProgressCallback {
 /// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
 /// `prefix_dir`: shared training prefixes (SetupOptions::prefix_dir); "" = off.
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
-                 bool resume, const std::string& method = "", const std::string& prefix_dir = "") {
+                 bool resume, const std::string& method = "", const std::string& prefix_dir = "",
+                 bool replace = true) {
   // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
   auto lock = lock_directory(out_dir);
   if (!lock.ok()) return report_error(lock.status());
@@ -69,14 +70,22 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (lock->held())  // nobody else writes here: a killed attempt's half-written files can go
     if (const int n = remove_stale_temp_files(out_dir); n > 0)
       std::printf("removed %d half-written file(s) of an earlier, killed attempt\n", n);
+  if (!resume && !replace)
+    for (const char* kept : {"checkpoint.pt", "metrics.json"})
+      if (std::error_code ec; fs::exists(out_dir + "/" + kept, ec))
+        return report_error(Status(
+            StatusCode::kInvalidArgument,
+            out_dir + " holds a run (" + kept +
+                "): --resume continues it, --force trains a new one over it, or pick another -o"));
+  // Nothing in the directory changes until the set-up (dataset, plugins, checkpoint) succeeded:
+  // a typo in a path must not cost a finished run its results.
+  auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
+  if (!trainer.ok()) return report_error(trainer.status());
+  Trainer& t = *trainer.value();
   Status st = experiments::mark_run_started(out_dir);
   if (st.ok()) st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());
-
-  auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
-  if (!trainer.ok()) return report_error(trainer.status());
-  Trainer& t = *trainer.value();
   std::printf("scene: %zu train / %zu test views of %dx%d, %lld anchors\n",
               t.dataset().train.size(), t.dataset().test.size(),
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.width,
@@ -199,7 +208,7 @@ train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interv
 
 void add_train_commands(CLI::App& app, GlobalOptions& g) {
   static std::string config, out_dir, run_dir, png_dir, method, prefix_dir;
-  static bool resume = false;
+  static bool resume = false, force = false;
 
   auto* train =
       app.add_subcommand("train", "Train an anchor model from posed images (config-driven)");
@@ -208,6 +217,9 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
       ->default_val("runs/train");
   train->add_option("--set", g.sets, "override a config key: --set train.iterations=1000");
   train->add_flag("--resume", resume, "continue from the run directory's last checkpoint");
+  train->add_flag("--force", force,
+                  "train from the start into a directory that holds a run (its checkpoint and "
+                  "results are replaced); without it such a directory is refused");
   train->add_option("--share-prefix", prefix_dir,
                     "directory of shared training prefixes (rate path): start from the state at "
                     "rate_start of a run that differs only in rate.lambda/rate.mask_lambda when "
@@ -220,7 +232,8 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(config, g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, resume, method, prefix_dir));
+    throw CLI::RuntimeError(
+        run_training(cfg.value(), r, out_dir, resume, method, prefix_dir, force));
   });
 
   auto* eval = app.add_subcommand(
@@ -228,14 +241,18 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
       "Render the test views of a trained run and report PSNR and SSIM per view and mean "
       "(8-bit PNG round trip; SSIM 11x11, sigma 1.5). LPIPS is not computed: it needs "
       "pretrained VGG weights that cannot be shipped or downloaded here.");
-  eval->add_option("RUN", run_dir, "directory written by `crpgs train`, or a .crpgs bitstream")
+  eval->add_option("RUN", run_dir,
+                   "directory written by `crpgs train`, a .crpgs bitstream or a `crpgs decode` "
+                   "directory")
       ->required();
-  eval->add_option("-o,--output", png_dir, "where to write the PNGs (default RUN_DIR/renders)");
+  eval->add_option("-o,--output", png_dir,
+                   "where to write the PNGs (default: RUN_DIR/renders for a training run; none "
+                   "for a bitstream or a decode directory)");
   eval->add_option("--set", g.sets,
                    "override a key of the model's config (e.g. dataset.path=DIR when the dataset "
                    "has moved)");
   eval->callback([&g] {
-    if (fs::is_regular_file(run_dir))
+    if (fs::is_regular_file(run_dir) || fs::is_regular_file(fs::path(run_dir) / kDecodedModelFile))
       throw CLI::RuntimeError(eval_bitstream_file(g, run_dir, png_dir));
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(run_dir + "/config.yaml", g, r);
@@ -255,7 +272,8 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   auto* demo = app.add_subcommand(
       "demo",
       "Generate the embedded synthetic scene, train on it with the fast schedule, evaluate");
-  demo->add_option("-o,--output", out_dir, "run directory")->default_val("runs/demo");
+  demo->add_option("-o,--output", out_dir, "run directory (an earlier demo there is replaced)")
+      ->default_val("runs/demo");
   demo->add_option("--set", g.sets, "override a key of the demo config");
   demo->callback([&g] {
     ComponentRegistry r = load_registry(g);

@@ -89,6 +89,7 @@ int main(int argc, char** argv) {
   app.add_option("--plugin-dir", g.plugin_dirs,
                  "extra plugin directory, searched before CRPGS_PLUGIN_PATH and the install dir "
                  "(repeatable)");
+  app.fallthrough();  // `crpgs plugins --plugin-dir D` as well as `crpgs --plugin-dir D plugins`
   add_plugin_commands(app, g);
   add_config_commands(app, g);
   add_train_commands(app, g);

@@ -44,6 +44,18 @@ TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
   out = crpgs_output("eval /nonexistent_run --set dataset.path=x", &rc);
   EXPECT_NE(rc, 0);
   EXPECT_EQ(out.find("unknown option"), std::string::npos) << out;
+  // So does encode.
+  out = crpgs_output("encode /nonexistent_run -o x.crpgs --set dataset.path=x", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_EQ(out.find("unknown option"), std::string::npos) << out;
+  // A global option after the command is taken as well.
+  out = crpgs_output("plugins --plugin-dir /nonexistent_plugins", &rc);
+  EXPECT_EQ(rc, 0) << out;
+  EXPECT_NE(out.find("/nonexistent_plugins"), std::string::npos) << out;
+  // A count that is not a count says so.
+  out = crpgs_output("render x.crpgs -o r --threads -2", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(out.find("--threads: Value -2 not in range 0 to 1024"), std::string::npos) << out;
 #endif
 }
 

@@ -214,6 +214,26 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
     }
   }
 
+  // 3d. Outputs that would replace an input are refused, and nothing is written.
+  const auto run_bytes = test::read_text(dir / "run" / "checkpoint.pt");
+  for (const auto& [cmd, why] : std::vector<std::pair<std::string, std::string> >{
+           {"export '" + file + "' -o '" + file + "'", "is the input itself"},
+           {"encode '" + (dir / "run").string() + "' -o '" +
+                (dir / "run" / "checkpoint.pt").string() + "'",
+            "would replace the checkpoint.pt of"},
+           {"decode '" + file + "' -o '" + (dir / "run").string() + "'",
+            "holds a training run (checkpoint.pt)"}}) {
+    EXPECT_NE(run_cli(cmd, dir / "log.txt", &log), 0) << cmd;
+    EXPECT_NE(log.find(why), std::string::npos) << cmd << "\n" << log;
+  }
+  EXPECT_EQ(test::read_text(dir / "run" / "checkpoint.pt"), run_bytes);
+  ASSERT_TRUE(read_file_bytes(file).ok());
+  EXPECT_EQ(read_file_bytes(file)->size(), enc->bytes.size());
+  // eval takes a decode directory too.
+  ASSERT_EQ(run_cli("eval '" + (dir / "dec1").string() + "'", dir / "log.txt", &log), 0) << log;
+  EXPECT_NE(log.find("decode directory"), std::string::npos) << log;
+  EXPECT_NE(log.find("mean"), std::string::npos) << log;
+
   // 4. A model whose dataset is absent is refused with a message that says so.
   EXPECT_NE(run_cli("render '" + (dir / "dec1").string() + "' -o '" + (dir / "none").string() +
                         "' --set dataset.format=colmap --set dataset.path=" +

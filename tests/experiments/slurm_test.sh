@@ -159,7 +159,7 @@ mv "$D/sweep.submitted.yaml" "$D/sweep.yaml"
 
 # A second submission has nothing left to do.
 again=$(timeout 60 "$CRPGS" sweep "$D/sweep.yaml" --slurm 2>&1)
-echo "$again" | grep -q "6 finished, 0 to submit" || { echo "$again"; echo "FAIL: resubmission was not a no-op"; exit 1; }
+echo "$again" | grep -q "6 finished, 0 running elsewhere, 0 to submit" || { echo "$again"; echo "FAIL: resubmission was not a no-op"; exit 1; }
 
 "$CRPGS" report "$D/runs" -o "$D/report" || { echo "FAIL: crpgs report"; exit 1; }
 grep -q "6 finished runs" "$D/report/report.md" || { echo "FAIL: report.md"; exit 1; }

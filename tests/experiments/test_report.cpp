@@ -288,6 +288,15 @@ TEST(Report, APlotGnuplotCannotDrawBecomesANoteAndTheTablesAreWritten) {
   EXPECT_NE(read_text(out->html).find("rd_fern.png not drawn"), std::string::npos);
 }
 
+TEST(Report, ADirectoryWithoutRunsIsAnError) {
+  // A path one level off (a run, or a parent of the runs directory) must not give an empty report.
+  const std::string empty = fresh_dir("no_runs");
+  auto out = write_report({empty}, ReportOptions{});
+  ASSERT_FALSE(out.ok());
+  EXPECT_NE(out.status().message().find("no runs in " + empty), std::string::npos);
+  EXPECT_FALSE(fs::exists(empty + "/report"));
+}
+
 TEST(Report, Base64) {
   EXPECT_EQ(base64_encode(""), "");
   EXPECT_EQ(base64_encode("f"), "Zg==");

@@ -146,16 +146,26 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
     EXPECT_TRUE(torch::equal(v, b.at(k))) << k;
   }
 
-  // The run directory says whether it is finished, whoever trained it (a sweep reads this):
-  // finished now; then a failing `crpgs train` into it leaves it unfinished, not with the
-  // earlier attempt's metrics passing for its own.
+  // The run directory says whether it is finished, whoever trained it (a sweep reads this).
+  // A new training into it needs --force; one that fails in its set-up (a mistyped dataset)
+  // leaves the finished run as it was: results, config and all.
   EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete);
-  EXPECT_NE(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() +
-                              "' --set dataset.format=colmap --set dataset.path=/nonexistent",
-                          dir / "failed.log", &log),
+  const std::string config_before = test::read_text(run / "config.yaml");
+  const std::string bad_dataset = "' --set dataset.format=colmap --set dataset.path=/nonexistent";
+  EXPECT_NE(test::run_cli("train -c '" + cfg.string() + "' -o '" + run.string() + bad_dataset,
+                          dir / "refused.log", &log),
             0);
-  EXPECT_FALSE(fs::exists(run / "metrics.json")) << log;
-  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kInterrupted) << log;
+  EXPECT_NE(log.find(run.string() + " holds a run (checkpoint.pt): --resume continues it, "
+                                    "--force trains a new one over it"),
+            std::string::npos)
+      << log;
+  EXPECT_NE(test::run_cli(
+                "train -c '" + cfg.string() + "' -o '" + run.string() + bad_dataset + " --force",
+                dir / "failed.log", &log),
+            0);
+  EXPECT_NE(log.find("/nonexistent"), std::string::npos) << log;
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete) << log;
+  EXPECT_EQ(test::read_text(run / "config.yaml"), config_before);
 #endif
 }
 

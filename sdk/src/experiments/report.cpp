@@ -477,6 +477,11 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       fs::rename(previous, records, ec);
   }
   CRPGS_ASSIGN_OR_RETURN(CollectedRuns collected, collect_runs(runs_dirs, opt.out_dir));
+  if (collected.runs.empty() && collected.unfinished.empty())  // e.g. a level too deep or high
+    return Status(StatusCode::kNotFound,
+                  "no runs in " + join(runs_dirs) +
+                      ": a runs directory holds a directory per run with its metrics.json or "
+                      "run.json (as `crpgs sweep` writes them)");
   std::error_code ec;
   fs::create_directories(opt.out_dir, ec);
   if (ec)

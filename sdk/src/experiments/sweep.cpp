@@ -368,7 +368,9 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string*
 
   std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",
                                    "-o",       run.dir, "--method", run.method};
-  if (resume) args.push_back("--resume");
+  // Not resuming, the sweep has decided the run is (re)done: whatever an earlier attempt left
+  // there goes.
+  args.push_back(resume ? "--resume" : "--force");
   if (!opt.prefix_dir.empty()) args.insert(args.end(), {"--share-prefix", opt.prefix_dir});
   const std::string header = "== " + local_time_text() + " " + [&] {
     std::string cmd;
