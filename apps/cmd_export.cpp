@@ -70,8 +70,13 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   opt.directions = directions;
   opt.view_weight = view_weight;
   for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
-  if (opt.camera_centers.empty())
+  if (opt.camera_centers.empty()) {
+    // The test views then give the representative views only: fitting the colours they see
+    // would make the PSNR measured on them below optimistic.
     for (const auto& v : ds.test) opt.camera_centers.push_back(v.camera.center());
+    opt.view_weight = 0;
+    std::fprintf(stderr, "note: no training views; SH fitted on the sphere alone\n");
+  }
   const auto t0 = std::chrono::steady_clock::now();
   auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
   if (!baked.ok()) return report_error(baked.status());
@@ -83,7 +88,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   std::printf(
       "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), %llu bytes, "
       "%.2f s\n",
-      out.c_str(), baked->size(), degree, directions, view_weight,
+      out.c_str(), baked->size(), degree, directions, opt.view_weight,
       static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
   if (ds.test.empty()) return 0;
   // Read the file back: what is measured is what was written.
@@ -161,7 +166,7 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
   ex->add_option("--view-weight", view_weight,
                  "share of the SH fit on the training cameras' own views (the rest on the sphere "
                  "of directions); 0 fits the sphere alone")
-      ->check(CLI::Range(0.0, 0.99));
+      ->check(CLI::Range(0.0, kMaxViewWeight));
   add_threads_option(ex, threads);
   ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
   ex->callback([&g] {

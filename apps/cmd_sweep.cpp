@@ -144,6 +144,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.runner = runner && *runner ? runner : ex::self_executable();
 
   if (a.run_index >= 0) {
+    opt.use_prepared_configs = true;  // as submitted, whatever the base configs say by now
     if (a.run_index >= static_cast<int>(runs.size()))
       return report_error(Status(StatusCode::kInvalidArgument,
                                  "--run-index " + std::to_string(a.run_index) + ": the sweep has " +
@@ -172,11 +173,21 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
         continue;
       }
       Status st = ex::build_run_config(r, &registry).status();
-      if (st.ok() && !a.dry_run) {
-        auto lock = lock_directory(r.dir);
-        st = lock.ok() ? ex::prepare_run(r, &registry) : lock.status();
-      }
       if (!st.ok()) return report_error(st);
+      std::error_code ec;
+      if (const std::string change = ex::config_change(r, &registry);
+          !change.empty() && fs::exists(r.dir + "/checkpoint.pt", ec))
+        std::printf("%s: resumes its checkpoint under a changed config: %s\n", r.id.c_str(),
+                    change.c_str());
+      if (!a.dry_run) {
+        auto lock = lock_directory(r.dir);
+        if (!lock.ok()) {  // started since the look above
+          std::printf("%s: %s, not submitted\n", r.id.c_str(), lock.status().message().c_str());
+          ++running;
+          continue;
+        }
+        if (st = ex::prepare_run(r, &registry); !st.ok()) return report_error(st);
+      }
       pending.push_back(r.index);
     }
     std::printf("%zu finished, %zu running elsewhere, %zu to submit\n",

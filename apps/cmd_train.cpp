@@ -82,6 +82,14 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
   if (!trainer.ok()) return report_error(trainer.status());
   Trainer& t = *trainer.value();
+  // Training anew: an earlier run's files go now, or a run killed before its first checkpoint
+  // would leave the old one for a later --resume (or a sweep) to take for its own.
+  if (!resume)
+    for (const char* old : {"checkpoint.pt", "metrics.json", "scene.crpgs"})
+      if (std::error_code ec; fs::remove(fs::path(out_dir) / old, ec), ec)
+        return report_error(
+            Status(StatusCode::kIoError,
+                   "cannot remove the earlier run's " + out_dir + "/" + old + ": " + ec.message()));
   Status st = experiments::mark_run_started(out_dir);
   if (st.ok()) st = cfg.save(out_dir + "/config.yaml");
   if (!st.ok()) return report_error(st);

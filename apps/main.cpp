@@ -11,6 +11,7 @@
 
 #include "cli_common.h"
 #include "core/text_list.h"
+#include "crpgs/dir_lock.h"
 #include "crpgs/version.h"
 
 namespace {
@@ -76,6 +77,7 @@ void explain_unknown_names(const CLI::App& app, int argc, char** argv) {
 int main(int argc, char** argv) {
   using namespace crpgs::cli;
   restart_with_idle_threads_that_sleep(argc, argv);
+  crpgs::take_handed_over_lock();            // before any thread starts: it edits the environment
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // logs show progress lines as they happen
   CLI::App app{
       "crpgs: compress 3D Gaussian Splatting scenes with CRP-GS (cross-representation "

@@ -2,9 +2,11 @@
 /// @brief Schema parsing, config validation messages (file:line:col + YAML path), --set,
 /// inheritance (`base:`).
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "core/text_list.h"
 #include "crpgs/config.h"
@@ -176,6 +178,8 @@ TEST(Config, KeysGivenTwiceAndSecondDocumentsAreRefused) {
       << st.message();
   st = resolve_text("train: {seed: 1}\n---\ntrain: {seed: 2}\n");
   EXPECT_NE(st.message().find("a second YAML document"), std::string::npos) << st.message();
+  // A trailing `---` (with a comment) holds nothing: fine.
+  EXPECT_TRUE(resolve_text("train: {seed: 1}\n---\n# end\n").ok());
 }
 
 TEST(Config, AliasesThatExpandExponentiallyAreRefusedQuickly) {
@@ -197,7 +201,7 @@ TEST(Config, SetKeysEndingInADotAreRefused) {
   auto cfg = Config::from_string("train: {seed: 1}\n", "t.yaml");
   ASSERT_TRUE(cfg.ok());
   Status st = cfg->apply_override("train.=1");
-  EXPECT_NE(st.message().find("--set 'train.=1': empty key"), std::string::npos) << st.message();
+  EXPECT_NE(st.message().find("--set 'train.': empty key"), std::string::npos) << st.message();
 }
 
 TEST(Config, UnknownTypeListsAvailableAndSearchPath) {
@@ -402,10 +406,18 @@ TEST(ConfigBase, RefusesCyclesMissingFilesAndBadValues) {
   // Not a file: a directory read as an empty config would train on the defaults, /dev/zero
   // would never end.
   st = Config::load_file(dir).status();
-  EXPECT_NE(st.message().find("not a config file (a directory or device)"), std::string::npos)
-      << st.message();
+  EXPECT_NE(st.message().find("a directory, not a config file"), std::string::npos) << st.message();
   st = Config::load_file("/dev/zero").status();
-  EXPECT_NE(st.message().find("not a config file"), std::string::npos) << st.message();
+  EXPECT_NE(st.message().find("/dev/zero: larger than 16 MiB; not a config"), std::string::npos)
+      << st.message();
+  // A pipe is read like a file (`crpgs train -c <(...)`).
+  const std::string fifo = dir + "pipe.yaml";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::thread writer([&] { std::ofstream(fifo) << "train: {seed: 5}\n"; });
+  auto piped = Config::load_file(fifo);
+  writer.join();
+  ASSERT_TRUE(piped.ok()) << piped.status().to_string();
+  EXPECT_EQ(piped->root()["train"]["seed"].as<int>(), 5);
   st = Config::load_file(dir + "number.yaml").status();
   EXPECT_NE(st.message().find("number.yaml:1:7: base: expected a config file or a list"),
             std::string::npos)

@@ -214,10 +214,11 @@ TEST(Report, RecordsRebuildTheReportAndNewerRunsReplaceOlderOnes) {
 
 /// Two runs of `method` on `dataset`; `coded`: with a bitstream and codec times, else as a
 /// config without the rate path writes them (size 0, no encode/decode times).
-void add_runs(const std::string& runs, const std::string& dataset, bool coded, int* index) {
+void add_runs(const std::string& runs, const std::string& dataset, bool coded, int* index,
+              const std::string& method = "base") {
   for (int i = 0; i < 2; ++i) {
     RunMetrics m;
-    m.method = "base";
+    m.method = method;
     m.dataset = dataset;
     m.lambda = coded ? 1e-3 * (i + 1) : NAN;
     m.size_bytes = coded ? uint64_t(3e6 / (i + 1)) : 0;
@@ -235,7 +236,7 @@ void add_runs(const std::string& runs, const std::string& dataset, bool coded, i
     EXPECT_TRUE(write_run_metrics(dir + "/metrics.json", m).ok());
     write_text(dir + "/run.json",
                "{\"id\": \"" + std::to_string(*index) + "\", \"index\": " + std::to_string(*index) +
-                   ", \"method\": \"base\", \"dataset\": \"" + dataset + "\"}\n");
+                   ", \"method\": \"" + method + "\", \"dataset\": \"" + dataset + "\"}\n");
     ++*index;
   }
 }
@@ -248,6 +249,9 @@ TEST(Report, RunsWithoutBitstreamsAndLookAlikeNamesGetTheirOwnPlots) {
   int index = 0;
   add_runs(runs, "a b", false, &index);
   add_runs(runs, "a_b", true, &index);
+  // Dataset and method names that join to the same breakdown name.
+  add_runs(runs, "n", true, &index, "x_y");
+  add_runs(runs, "n_x", true, &index, "y");
   ReportOptions opt;
   opt.out_dir = fresh_dir("uncoded_out");
   auto out = write_report({runs}, opt);
@@ -257,9 +261,12 @@ TEST(Report, RunsWithoutBitstreamsAndLookAlikeNamesGetTheirOwnPlots) {
     names.insert(fs::path(p).filename().string());
     EXPECT_GT(read_text(p).size(), 8000u) << p << " looks empty";
   }
-  const std::set<std::string> expected = {"time_a_b.png",   "cost_a_b.png",
-                                          "rd_a_b_2.png",   "time_a_b_2.png",
-                                          "cost_a_b_2.png", "breakdown_a_b_2_base.png"};
+  const std::set<std::string> expected = {
+      "time_a_b.png",        "cost_a_b.png",         "rd_a_b_2.png",
+      "time_a_b_2.png",      "cost_a_b_2.png",       "rd_n.png",
+      "time_n.png",          "cost_n.png",           "rd_n_x.png",
+      "time_n_x.png",        "cost_n_x.png",         "breakdown_a_b_base.png",
+      "breakdown_n_x_y.png", "breakdown_n_x_y_2.png"};
   EXPECT_EQ(names, expected);
   ASSERT_EQ(out->notes.size(), 1u);
   EXPECT_EQ(out->notes[0], "a b: no RD plot, no run wrote a bitstream");

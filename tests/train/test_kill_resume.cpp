@@ -166,6 +166,26 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
   EXPECT_NE(log.find("/nonexistent"), std::string::npos) << log;
   EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete) << log;
   EXPECT_EQ(test::read_text(run / "config.yaml"), config_before);
+  // --force that gets past its set-up removes the earlier run's checkpoint and results at once:
+  // killed before its own first checkpoint, it leaves nothing a --resume could take for its own.
+  const pid_t forced =
+      test::spawn_cli({"train", "-c", cfg.string(), "-o", run.string(), "--force", "--set",
+                       "train.iterations=100000", "--set", "train.checkpoint_interval=0", "--set",
+                       "train.checkpoint_minutes=0"},
+                      dir / "forced.log");
+  ASSERT_GT(forced, 0);
+  const auto deadline = Clock::now() + std::chrono::seconds(60);
+  while (test::read_text(dir / "forced.log").find("resolved config") == std::string::npos &&
+         waitpid(forced, nullptr, WNOHANG) == 0 && Clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  kill(forced, SIGKILL);
+  int forced_status = 0;
+  ASSERT_EQ(wait_for(forced, &forced_status), forced);
+  ASSERT_NE(test::read_text(dir / "forced.log").find("resolved config"), std::string::npos)
+      << test::read_text(dir / "forced.log");
+  EXPECT_FALSE(fs::exists(run / "checkpoint.pt"));
+  EXPECT_FALSE(fs::exists(run / "metrics.json"));
+  EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kInterrupted);
 #endif
 }
 

@@ -48,6 +48,8 @@ class Config {
 
   /// Applies "a.b.c=value" (value parsed as YAML). Creates missing maps.
   Status apply_override(const std::string& assignment);
+  /// Sets the key "a.b.c" to `value` as it is (no YAML parsing). Creates missing maps.
+  Status set(const std::string& dotted_key, const YAML::Node& value);
 
   /// Validates every section (unknown top-level keys are errors) and fills in defaults. Component
   /// types are looked up in `registry`; an unknown type lists the available types and where

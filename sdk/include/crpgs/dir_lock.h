@@ -41,6 +41,11 @@ class DirectoryLock {
 /// file system cannot lock (some network file systems), an unheld lock: check held().
 StatusOr<DirectoryLock> lock_directory(const std::string& dir);
 
+/// Takes a lock handed over by the parent process (DirectoryLock::fd()) out of the environment,
+/// for lock_directory to adopt. Call it first thing in main, before threads exist (it unsets an
+/// environment variable); lock_directory calls it too, for processes that did not.
+void take_handed_over_lock();
+
 /// Who holds DIR's lock ("pid 123 since ..."), or "" when nobody does (or DIR has no lock file).
 std::string directory_lock_holder(const std::string& dir);
 

@@ -31,10 +31,14 @@
 
 namespace crpgs {
 
+/// Above this the sphere's share of the fit is too small to keep its normal equations
+/// well-conditioned.
+constexpr double kMaxViewWeight = 0.99;
+
 struct BakeOptions {
   int sh_degree = 3;         ///< 0..3
   int directions = 96;       ///< sphere samples of the SH fit (>= sh_coeff_count(sh_degree))
-  double view_weight = 0.9;  ///< share of the fit on the cameras' own views, [0, 1)
+  double view_weight = 0.9;  ///< share of the fit on the cameras' own views, [0, kMaxViewWeight]
   std::vector<Eigen::Vector3d> camera_centers;  ///< representative views (>= 1)
 };
 

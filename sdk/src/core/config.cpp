@@ -48,10 +48,11 @@ Status check_keys(const YAML::Node& n, const std::string& name, size_t* visited)
 StatusOr<YAML::Node> parse_yaml(const std::string& text, const std::string& name) {
   try {
     const std::vector<YAML::Node> docs = YAML::LoadAll(text);
-    if (docs.size() > 1)
-      return Status(StatusCode::kInvalidConfig,
-                    SourceRef{name, {}}.describe(docs[1]) +
-                        ": a second YAML document (after `---`); a config is one document");
+    for (size_t i = 1; i < docs.size(); ++i)
+      if (!docs[i].IsNull())  // a trailing `---` (and comments) is harmless
+        return Status(StatusCode::kInvalidConfig,
+                      SourceRef{name, {}}.describe(docs[i]) +
+                          ": a second YAML document (after `---`); a config is one document");
     YAML::Node root = docs.empty() ? YAML::Node() : docs[0];
     if (root.IsNull()) return YAML::Node(YAML::NodeType::Map);
     if (!root.IsMap())
@@ -136,21 +137,21 @@ struct LoadedTree {
 // `chain`: the files being loaded, outermost first, to refuse a config that inherits itself.
 StatusOr<LoadedTree> load_tree(const std::string& path, std::vector<std::string>& chain) {
   std::error_code ec;
-  const auto status = fs::status(path, ec);
-  if (ec || !fs::exists(status))
-    return Status(StatusCode::kIoError, "cannot open config file " + path +
-                                            (ec ? ": " + ec.message() : ": no such file"));
-  if (!fs::is_regular_file(status))
-    return Status(StatusCode::kIoError, path + ": not a config file (a directory or device)");
-  if (fs::file_size(path, ec) > kMaxConfigBytes)
-    return Status(StatusCode::kIoError, path + ": larger than 16 MiB; not a config");
-  std::ifstream in(path);
+  // A directory would read as an empty config (training on the defaults); pipes are fine
+  // (`-c <(...)`), devices like /dev/zero end at the size limit.
+  if (fs::is_directory(path, ec))
+    return Status(StatusCode::kIoError, path + ": a directory, not a config file");
+  std::ifstream in(path, std::ios::binary);
   if (!in) return Status(StatusCode::kIoError, "cannot open config file " + path);
-  std::stringstream ss;
-  ss << in.rdbuf();
+  std::string text;
+  char buf[65536];
+  while (text.size() <= kMaxConfigBytes && in.read(buf, sizeof buf).gcount() > 0)
+    text.append(buf, size_t(in.gcount()));
   if (in.bad()) return Status(StatusCode::kIoError, "cannot read config file " + path);
+  if (text.size() > kMaxConfigBytes)
+    return Status(StatusCode::kIoError, path + ": larger than 16 MiB; not a config");
   LoadedTree t;
-  CRPGS_ASSIGN_OR_RETURN(t.root, parse_yaml(ss.str(), path));
+  CRPGS_ASSIGN_OR_RETURN(t.root, parse_yaml(text, path));
   const fs::path dir = fs::absolute(path).parent_path();
   SourceRef src{path, {}};
 
@@ -240,15 +241,6 @@ Status Config::apply_override(const std::string& assignment) {
         StatusCode::kInvalidArgument,
         "--set '" + assignment + "': expected key.path=value, e.g. train.iterations=1000");
   const std::string path = assignment.substr(0, eq), text = assignment.substr(eq + 1);
-  std::vector<std::string> keys;
-  std::stringstream ps(path);
-  for (std::string k; std::getline(ps, k, '.');) {
-    if (k.empty())
-      return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
-    keys.push_back(k);
-  }
-  if (path.back() == '.')  // getline drops the empty last part
-    return Status(StatusCode::kInvalidArgument, "--set '" + assignment + "': empty key");
   YAML::Node value;
   try {
     value = without_marks(YAML::Load(text));
@@ -256,6 +248,18 @@ Status Config::apply_override(const std::string& assignment) {
     return Status(StatusCode::kInvalidArgument,
                   "--set " + path + ": value does not parse: " + e.msg);
   }
+  return set(path, value);
+}
+
+Status Config::set(const std::string& path, const YAML::Node& value) {
+  std::vector<std::string> keys;
+  std::stringstream ps(path);
+  for (std::string k; std::getline(ps, k, '.');) {
+    if (k.empty()) return Status(StatusCode::kInvalidArgument, "--set '" + path + "': empty key");
+    keys.push_back(k);
+  }
+  if (path.empty() || path.back() == '.')  // getline drops the empty last part
+    return Status(StatusCode::kInvalidArgument, "--set '" + path + "': empty key");
   // Walk/create maps; yaml-cpp nodes are handles, so assignment through `cur` edits root_.
   std::vector<YAML::Node> chain{root_};
   for (size_t i = 0; i + 1 < keys.size(); ++i) {
@@ -354,10 +358,8 @@ Status make_dataset_path_absolute(Config& cfg, const std::string& base) {
   if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
   const std::string p = ds["path"].Scalar();
   if (p.empty() || fs::path(p).is_absolute()) return OkStatus();
-  // Quoted, as the path is parsed as YAML again: "data #2" or "a: b" must stay as they are.
-  YAML::Emitter quoted;
-  quoted << YAML::DoubleQuoted << (fs::path(base) / p).lexically_normal().string();
-  return cfg.apply_override(std::string("dataset.path=") + quoted.c_str());
+  // Set as a node, not as --set text: no YAML parsing, so "data #2" or "a: b" stay as they are.
+  return cfg.set("dataset.path", YAML::Node((fs::path(base) / p).lexically_normal().string()));
 }
 
 Status Config::save(const std::string& path) const {

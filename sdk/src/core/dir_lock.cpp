@@ -53,19 +53,29 @@ std::string DirectoryLock::child_environment(int child_fd) {
 }
 
 namespace {
+int g_handed_fd = -1;  // taken from the environment, not adopted yet
+}  // namespace
+
+void take_handed_over_lock() {
+  const char* env = std::getenv(kInheritedLockEnv);
+  if (!env) return;
+  const int fd = std::atoi(env);
+  ::unsetenv(kInheritedLockEnv);  // not for this process's own children
+  if (fd <= 2 || ::fcntl(fd, F_SETFD, FD_CLOEXEC) != 0) return;
+  g_handed_fd = fd;
+}
+
+namespace {
 
 /// The descriptor a parent handed over for `path` (same file, lock taken on it), or -1.
 int adopt_inherited(const std::string& path) {
-  const char* env = std::getenv(kInheritedLockEnv);
-  if (!env) return -1;
-  const int fd = std::atoi(env);
-  struct stat a {
-  }, b{};
-  if (fd <= 2 || ::fstat(fd, &a) != 0 || ::stat(path.c_str(), &b) != 0 || a.st_dev != b.st_dev ||
+  take_handed_over_lock();
+  const int fd = g_handed_fd;
+  struct stat a = {}, b = {};
+  if (fd < 0 || ::fstat(fd, &a) != 0 || ::stat(path.c_str(), &b) != 0 || a.st_dev != b.st_dev ||
       a.st_ino != b.st_ino)
-    return -1;                    // meant for another directory
-  ::unsetenv(kInheritedLockEnv);  // not for this process's own children
-  ::fcntl(fd, F_SETFD, FD_CLOEXEC);
+    return -1;  // meant for another directory
+  g_handed_fd = -1;
   return fd;
 }
 

@@ -206,7 +206,7 @@ StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
       p.max = d;
     }
     if (p.min && p.max && *p.min > *p.max) return bad("parameter '" + p.key + "': min > max");
-    if (e["min_exclusive"] && !parse_bool(e["min_exclusive"], &p.min_exclusive))
+    if (e["min_exclusive"] && !YAML::convert<bool>::decode(e["min_exclusive"], p.min_exclusive))
       return bad("parameter '" + p.key + "': min_exclusive must be true or false");
     if (e["choices"]) {
       if (!e["choices"].IsSequence())
@@ -219,7 +219,7 @@ StatusOr<Schema> Schema::parse(const std::string& yaml_text) {
     }
     if (p.type == ParamType::kChoice && p.choices.empty())
       return bad("parameter '" + p.key + "': choice without choices");
-    if (e["doc"] && !text(e["doc"], &p.doc))
+    if (e["doc"] && !e["doc"].IsNull() && !text(e["doc"], &p.doc))
       return bad("parameter '" + p.key + "': doc must be text");
     if (!e["default"]) return bad("parameter '" + p.key + "': missing default");
     std::string why;

@@ -196,7 +196,7 @@ class FileNames {
 
 /// Draws a group's plots. A plot gnuplot cannot draw becomes a note, and the other plots and the
 /// tables are still written; panels with no finite values are left out rather than failing.
-void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames& methods,
+void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames& breakdowns,
                      std::vector<std::string>& names, std::vector<std::string>& notes) {
   const std::string ds = datasets(g.dataset);
   auto draw = [&](const std::string& name, const std::string& body, int w, int h) {
@@ -210,14 +210,18 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
   // run without a bitstream, is NaN too, as log scales cannot show it).
   auto nan_text = [](double v) { return std::isfinite(v) ? std::to_string(v) : "NaN"; };
   std::vector<std::string> files;
-  bool any_size = false, any_time[3] = {false, false, false};
+  // Per time column: a run with it and a PSNR, a run with it and a size (the two panel rows).
+  bool any_size = false, with_psnr[3] = {false, false, false}, with_size[3] = {false, false, false};
   for (size_t i = 0; i < g.methods.size(); ++i) {
     std::string text = "# size_MB psnr encode_s decode_s render_ms\n";
     for (const auto* r : g.by_method.at(g.methods[i])) {
       const auto& m = r->metrics;
       const double t[3] = {m.encode_seconds, m.decode_seconds, m.render_seconds_per_view * 1e3};
       any_size |= m.size_bytes > 0;
-      for (int k = 0; k < 3; ++k) any_time[k] |= std::isfinite(t[k]);
+      for (int k = 0; k < 3; ++k) {
+        with_psnr[k] |= std::isfinite(t[k]) && std::isfinite(m.psnr_mean);
+        with_size[k] |= std::isfinite(t[k]) && m.size_bytes > 0;
+      }
       text += nan_text(m.size_bytes > 0 ? m.size_bytes / 1e6 : NAN) + " " + nan_text(m.psnr_mean) +
               " " + nan_text(t[0]) + " " + nan_text(t[1]) + " " + nan_text(t[2]) + "\n";
     }
@@ -266,9 +270,13 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
   // Size and PSNR against encode, decode and render time: the panels that have values.
   {
     std::vector<int> cols;
+    bool size_row = false;
     for (int col = 0; col < 3; ++col)
-      if (any_time[col]) cols.push_back(col);
-    const int rows = any_size ? 2 : 1;
+      if (with_psnr[col] || with_size[col]) {
+        cols.push_back(col);
+        size_row |= with_size[col];
+      }
+    const int rows = size_row ? 2 : 1;
     if (!cols.empty()) {
       std::string b = "set multiplot layout " + std::to_string(rows) + "," +
                       std::to_string(cols.size()) + " title " +
@@ -276,6 +284,10 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
       b += "set key inside bottom right\n";
       for (int row = 0; row < rows; ++row)
         for (int col : cols) {
+          if (!(row == 0 ? with_psnr[col] : with_size[col])) {
+            b += "set multiplot next\n";  // nothing to draw: an empty panel, not an error
+            continue;
+          }
           b += "set xlabel " + gp_quote(kTimeLabel[col]) + "\n";
           b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MB)\"") + "\n";
           b += "plot " + series(std::to_string(3 + col) + ":" + (row == 0 ? "2" : "1")) + "\n";
@@ -313,7 +325,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
          "colors = \"#4e79a7 #f28e2b #76b7b2 #e15759 #59a14f #edc948 #b07aa1 #9c755f #bab0ac\"\n";
     b += "plot for [c=2:" + std::to_string(kNumBitstreamCategories + 1) + "] " + gp_quote(f) +
          " using c:xtic(1) title columnheader(c) lc rgb word(colors, c - 1)";
-    draw("breakdown_" + ds + "_" + methods(g.methods[i]) + ".png", b, 900, 600);
+    draw("breakdown_" + breakdowns(g.dataset + "\n" + g.methods[i]) + ".png", b, 900, 600);
   }
 }
 
@@ -542,7 +554,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       "is fitted on log(size), and the difference is averaged over the common interval; — means "
       "no common interval (or fewer than 2 points).\n\n";
 
-  FileNames dataset_files, method_files;
+  FileNames dataset_files, breakdown_files;
   for (const auto& g : groups) {
     md += "## " + g.dataset + "\n\n### Rate–distortion points\n\n";
     html_body += "<h2>" + html_escape(g.dataset) + "</h2>\n<h3>Rate–distortion points</h3>\n";
@@ -654,7 +666,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
 
     if (plots) {
       std::vector<std::string> names;
-      plots_for_group(plotter, g, dataset_files, method_files, names, result.notes);
+      plots_for_group(plotter, g, dataset_files, breakdown_files, names, result.notes);
       if (!names.empty()) {
         md += "### Plots\n\n";
         html_body += "<h3>Plots</h3>\n";

@@ -361,9 +361,11 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string*
   }
   std::error_code ec;
   const bool resume = fs::exists(run.dir + "/checkpoint.pt", ec);
-  if (const std::string change = resume ? config_change(run, opt.registry) : ""; !change.empty())
-    *note = "; it resumes its checkpoint under a changed config: " + change;
-  CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
+  if (!opt.use_prepared_configs || !fs::exists(run.dir + "/config.yaml", ec)) {
+    if (const std::string change = resume ? config_change(run, opt.registry) : ""; !change.empty())
+      *note = "; it resumes its checkpoint under a changed config: " + change;
+    CRPGS_RETURN_IF_ERROR(prepare_run(run, opt.registry));
+  }
   CRPGS_RETURN_IF_ERROR(mark_run_started(run.dir));
 
   std::vector<std::string> args = {opt.runner, "train", "-c",       run.dir + "/config.yaml",

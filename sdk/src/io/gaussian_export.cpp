@@ -96,8 +96,9 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
                       " directions for SH degree " + std::to_string(degree));
   if (options.camera_centers.empty())
     return Status(StatusCode::kInvalidArgument, "export: no camera centres for the view inputs");
-  if (!(options.view_weight >= 0 && options.view_weight < 1))
-    return Status(StatusCode::kInvalidArgument, "export: the view weight must be in [0, 1)");
+  if (!(options.view_weight >= 0 && options.view_weight <= kMaxViewWeight))
+    return Status(StatusCode::kInvalidArgument,
+                  "export: the view weight must be in [0, " + std::to_string(kMaxViewWeight) + "]");
   torch::NoGradGuard no_grad;
   AllVisible all;
   Camera cam;
@@ -180,7 +181,8 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
   if (fx.appearance_dim > 0) app = mlps.at("appearance").mean(0);  // as camera_index = -1
   const int nb = sh_coeff_count(degree);
   auto coeffs = torch::empty({G, nb, 3});
-  const int64_t chunk = 1024;
+  // Anchors per chunk: ~1M MLP rows and per-camera bases of bounded size, whatever the cameras.
+  const int64_t chunk = std::max<int64_t>(16, (int64_t(1024) * S) / (S + C));
   auto keep_acc = keep.accessor<int64_t, 1>();
   int64_t g0 = 0;
   for (int64_t a0 = 0; a0 < M && g0 < G; a0 += chunk) {

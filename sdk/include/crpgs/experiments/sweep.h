@@ -111,7 +111,10 @@ RunState run_state(const std::string& run_dir);
 
 struct ExecOptions {
   int workers = 1;
-  std::string runner;  ///< executable called as `runner train -c RUN/config.yaml -o RUN [--resume]`
+  /// Executable called as `runner train -c RUN/config.yaml -o RUN --resume|--force ...`. It
+  /// receives the run directory's lock on an inherited descriptor: a wrapper must exec the
+  /// trainer (not keep running beside it), or the directory stays locked.
+  std::string runner;
   const ComponentRegistry* registry =
       nullptr;           ///< to resolve configs; null = write them unresolved
   bool dry_run = false;  ///< print what would run, run nothing
@@ -120,6 +123,9 @@ struct ExecOptions {
   /// Set (e.g. by a SIGINT/SIGTERM handler) to stop: no run starts after it, the running ones get
   /// SIGTERM (`crpgs train` checkpoints and exits) and are waited for. Null: never stops.
   const std::atomic<bool>* stop = nullptr;
+  /// Slurm array tasks: train RUN/config.yaml as `crpgs sweep --slurm` prepared it at
+  /// submission (when there), not the base configs as they read now.
+  bool use_prepared_configs = false;
   /// Passed to each run as `--share-prefix`; "" = off. With it, the next run to start is chosen
   /// to share most (next_run_to_start).
   std::string prefix_dir;
