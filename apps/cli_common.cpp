@@ -112,7 +112,8 @@ Status check_dataset(const Config& c) {
                     "with --set dataset.path=DIR");
 }
 
-Status check_output_is_not_input(const std::string& out, const std::string& source) {
+Status check_output_is_not_input(const std::string& out, const std::string& source,
+                                 const std::string& own_output) {
   std::error_code ec;
   if (fs::is_directory(out, ec))
     return Status(StatusCode::kInvalidArgument,
@@ -122,7 +123,7 @@ Status check_output_is_not_input(const std::string& out, const std::string& sour
   if (fs::is_directory(source, ec) && fs::equivalent(fs::absolute(out).parent_path(), source, ec))
     for (const char* f : {"checkpoint.pt", "config.yaml", kDecodedModelFile, "metrics.json",
                           "run.json", "scene.crpgs"})
-      if (fs::path(out).filename() == f)
+      if (fs::path(out).filename() == f && f != own_output)
         return Status(StatusCode::kInvalidArgument, "-o " + out + " would replace the " + f +
                                                         " of " + source + "; pick another name");
   return OkStatus();

@@ -54,8 +54,10 @@ inline CLI::Option* add_threads_option(CLI::App* cmd, int& threads) {
 
 /// Refuses an output that would replace the command's input: `source` itself, or a file of the
 /// run or decode directory `source` (checkpoint, config, model, metrics). Also an output path
-/// that is a directory.
-Status check_output_is_not_input(const std::string& out, const std::string& source);
+/// that is a directory. `own_output`: the one file of the run this command writes itself (encode:
+/// scene.crpgs), which may be replaced.
+Status check_output_is_not_input(const std::string& out, const std::string& source,
+                                 const std::string& own_output = "");
 
 /// setup_training, then the dataset's warnings (ignored lens distortion, no SfM points, ...) on
 /// stderr: the SDK only collects them.

@@ -204,7 +204,8 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
 
 int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out) {
   ComponentRegistry r = load_registry(g);
-  if (Status st = check_output_is_not_input(out, run_dir); !st.ok()) return report_error(st);
+  if (Status st = check_output_is_not_input(out, run_dir, "scene.crpgs"); !st.ok())
+    return report_error(st);
   auto cfg = load_config(run_dir + "/config.yaml", g, r);
   if (!cfg.ok()) return report_error(cfg.status());
   if (Status st = check_dataset(cfg.value()); !st.ok()) return report_error(st);

@@ -229,6 +229,13 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
   EXPECT_EQ(test::read_text(dir / "run" / "checkpoint.pt"), run_bytes);
   ASSERT_TRUE(read_file_bytes(file).ok());
   EXPECT_EQ(read_file_bytes(file)->size(), enc->bytes.size());
+  // ... but encode refreshes the run's own bitstream in place.
+  ASSERT_EQ(run_cli("encode '" + (dir / "run").string() + "' -o '" +
+                        (dir / "run" / "scene.crpgs").string() + "'",
+                    dir / "log.txt", &log),
+            0)
+      << log;
+  EXPECT_TRUE(fs::exists(dir / "run" / "scene.crpgs"));
   // eval takes a decode directory too.
   ASSERT_EQ(run_cli("eval '" + (dir / "dec1").string() + "'", dir / "log.txt", &log), 0) << log;
   EXPECT_NE(log.find("decode directory"), std::string::npos) << log;
