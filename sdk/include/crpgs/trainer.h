@@ -135,8 +135,9 @@ class Trainer {
   /// becomes true, writes a checkpoint and returns kCancelled; `control->save` saves and goes on.
   /// A non-finite iteration (step() returned kNonFinite) is reported and skipped; after
   /// max_skipped_steps in a row, or when a parameter itself is non-finite, training rolls back to
-  /// the last checkpointed state and replays from there; after max_rollbacks it returns
-  /// kNonFinite. A state with a non-finite parameter is never checkpointed.
+  /// the last checkpointed state and replays from there; after max_rollbacks with no checkpoint
+  /// written in between it returns kNonFinite. A state with a non-finite parameter is never
+  /// checkpointed.
   Status train(ProgressCallback* progress = nullptr, TrainControl* control = nullptr);
   /// One iteration (iteration() + 1). Returns the loss, or kNonFinite (naming the iteration and
   /// the parameter group) when the loss or a gradient is NaN/Inf: then nothing was updated and

@@ -120,6 +120,11 @@ int Trainer::view_for_iteration(int iteration) const {
 }
 
 StatusOr<double> Trainer::step() {
+  if (model_->num_anchors() == 0)  // nothing could grow back, and the rate would divide by 0
+    return Status(StatusCode::kInternal,
+                  "iteration " + std::to_string(iteration_) +
+                      ": no anchors left (pruning removed every one: all were transparent); "
+                      "check the dataset's images and poses, or lower model.min_opacity");
   const int it = iteration_ + 1;
   const Schedule& sc = options_.schedule;
   const int v = view_for_iteration(it);
@@ -160,7 +165,8 @@ StatusOr<double> Trainer::step() {
         (model_->context()->parameter_bits() + model_->feature_model()->parameter_bits())
             .to(torch::kFloat);
     auto rate = ng.bits_per_param + hash_bits / denom;
-    auto mask_loss = model_->mask_loss();
+    // Without offset masks nothing reads the mask logits: no term to train them.
+    auto mask_loss = model_->options().use_offset_mask ? model_->mask_loss() : torch::zeros({});
     loss = loss + ro.lambda * rate + ro.mask_lambda * mask_loss;
     last_rate_.on = true;
     last_rate_.bits_per_param = ng.bits_per_param.item<double>();
@@ -436,9 +442,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   int last_report_it = iteration_;
   auto last_checkpoint = Clock::now();
   double rate = 0;
-  const View* held_out = !dataset_.test.empty()
-                             ? &dataset_.test.front()
-                             : (dataset_.train.empty() ? nullptr : &dataset_.train.front());
+  // The PSNR trace is of a held-out view: none without test views (a train view would flatter).
+  const View* held_out = dataset_.test.empty() ? nullptr : &dataset_.test.front();
   // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
   if (last_good_iteration_ != iteration_) {
     auto bytes = serialize_state();
@@ -473,7 +478,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     // is in the draws themselves: replay with other views, noise and subsets.
     const bool perturb = rollbacks > 1;
     if (perturb) {
-      replay_salt_ += 1;
+      // The restored salt is the checkpoint's: each further replay needs its own.
+      replay_salt_ += uint64_t(rollbacks - 1);
       gen_.set_current_seed(options_.seed * 0x9E3779B97F4A7C15ull +
                             replay_salt_ * 0xD1B54A32D192ED03ull + uint64_t(iteration_));
     }
@@ -535,7 +541,10 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
       p.bits_per_param = last_rate_.rate;
       p.has_test_psnr = has_psnr;
       p.test_psnr = psnr;
-      if (p.anchors != anchors_before || (it > sc.update_from && it % sc.update_interval == 0))
+      const bool adjust_step = it > sc.update_from && it < sc.update_until &&
+                               it % sc.update_interval == 0 &&
+                               !(it >= sc.pause_from && it < sc.pause_until);
+      if (p.anchors != anchors_before || adjust_step)
         progress->on_adjust(it, std::max<int64_t>(0, p.anchors - anchors_before),
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
       progress->on_iteration(p);
@@ -545,13 +554,15 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     const bool due_by_time = options_.checkpoint_minutes > 0 && !checkpoint_path().empty() &&
                              it < sc.iterations &&
                              seconds_since(last_checkpoint) >= 60 * options_.checkpoint_minutes;
-    if (due_by_count || due_by_time || (control && control->save.exchange(false))) {
+    const bool asked = control && control->save.exchange(false);  // cleared whatever else
+    if (due_by_count || due_by_time || asked) {
       Status st = checkpoint(progress);
       if (!st.ok()) {
         CRPGS_RETURN_IF_ERROR(recover(st));
         continue;
       }
       last_checkpoint = Clock::now();
+      rollbacks = 0;  // a new good state: the roll-back budget is per stretch between them
     }
     if (control && control->stop.load()) {
       CRPGS_RETURN_IF_ERROR(checkpoint(progress));
@@ -770,11 +781,12 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
   if (dataset.train.empty())
     return Status(StatusCode::kInvalidArgument,
                   "dataset '" + dataset.name + "' has no training views");
-  for (const auto& v : dataset.train)
-    if (v.image.channels != 3 || v.image.width != v.camera.width ||
-        v.image.height != v.camera.height)
-      return Status(StatusCode::kInvalidArgument,
-                    "view '" + v.camera.name + "': image must be RGB and match its camera size");
+  for (const auto* split : {&dataset.train, &dataset.test})
+    for (const auto& v : *split)
+      if (v.image.channels != 3 || v.image.width != v.camera.width ||
+          v.image.height != v.camera.height)
+        return Status(StatusCode::kInvalidArgument,
+                      "view '" + v.camera.name + "': image must be RGB and match its camera size");
   auto gen = at::make_generator<at::CPUGeneratorImpl>(train_options.seed);
   AnchorInit init;
   for (const auto& p : dataset.points) init.points.push_back({p.x(), p.y(), p.z()});
