@@ -321,6 +321,17 @@ TEST(LinksTraining, EncoderDropsExactlyTheLinksThatCostMoreThanTheySave) {
   ASSERT_TRUE(dec.ok()) << dec.status().to_string();
   EXPECT_TRUE(torch::equal(dec->model.links, some->links));
   EXPECT_TRUE(torch::equal(dec->model.feature_sym, some->feature_sym));
+
+  // Two leaves on one root break method.md §6.2's one-to-one rule: not encoded.
+  CodedModel shared = some.value();
+  const auto leaves = (shared.links >= 0).nonzero().view(-1);
+  ASSERT_GE(leaves.size(0), 2);
+  shared.links = shared.links.clone();
+  shared.links[leaves[1].item<int64_t>()] = shared.links[leaves[0].item<int64_t>()].item<int64_t>();
+  auto refused = encode_model(shared, resolved.value(), codec_components_of(pruned->model()));
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("has two leaves"), std::string::npos)
+      << refused.status().message();
 }
 
 TEST(LinksTraining, CheckpointKeepsTheLinks) {
@@ -342,6 +353,17 @@ TEST(LinksTraining, CheckpointKeepsTheLinks) {
   ASSERT_TRUE(v->model().links().defined());
   EXPECT_TRUE(torch::equal(v->model().links(), t->model().links()));
   std::filesystem::remove(path);
+  // A checkpoint whose links form a chain is refused on load, not at the end of the run.
+  auto broken = state;
+  auto l = broken.at("links").clone();
+  const auto linked = (l >= 0).nonzero().view(-1);
+  ASSERT_GE(linked.size(0), 2);
+  l[l[linked[0].item<int64_t>()].item<int64_t>()] = linked[1].item<int64_t>();  // a root, a leaf
+  broken["links"] = l;
+  auto w = links_trainer(ds, std::make_shared<PairLinks>());
+  Status st = w->model().load_state_dict(broken);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("checkpoint links:"), std::string::npos) << st.message();
 }
 
 }  // namespace
@@ -402,6 +424,19 @@ TEST(ShippedConfigs, ResolveAndFollowTheMethod) {
   EXPECT_DOUBLE_EQ(fast->checkpoint_minutes, 15);
   ASSERT_TRUE(cfg->apply_override("train.checkpoint_minutes=2.5").ok());
   EXPECT_DOUBLE_EQ(train_options_from_config(cfg->resolve(reg).value())->checkpoint_minutes, 2.5);
+  // A link build inside growing and pruning (which clear the links) or after the last iteration
+  // would leave the run without links and without a word: refused.
+  for (const char* builds : {"[30000, 1000]", "[30000, 50000]"}) {
+    auto c = Config::load_file(root + "/crpgs.yaml");
+    ASSERT_TRUE(c->apply_override(std::string("train.link_builds=") + builds).ok());
+    auto rr = c->resolve(reg);
+    ASSERT_TRUE(rr.ok()) << rr.status().to_string();
+    auto bad =
+        link_options_from_config(rr.value(), train_options_from_config(rr.value())->schedule);
+    ASSERT_FALSE(bad.ok()) << builds;
+    EXPECT_NE(bad.status().message().find("is outside [15000, 40000]"), std::string::npos)
+        << bad.status().message();
+  }
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 #include "crpgs/coding/range_coder.h"
 #include "crpgs/components.h"
 #include "crpgs/link_report.h"
+#include "crpgs/links.h"
 #include "crpgs/runtime.h"
 
 namespace crpgs {
@@ -347,12 +348,10 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
   if (m.links.defined()) {
     if (m.links.dim() != 1 || m.links.size(0) != N) return bad("links must be [N]");
     const auto l = m.links.to(torch::kLong).contiguous();
+    // In range, one hop, one leaf per root (method.md §6.2): what the decoder accepts.
+    if (Status st = check_links(l, {}); !st.ok()) return bad(st.message());
     const int64_t* lp = l.data_ptr<int64_t>();
-    for (int64_t i = 0; i < N; ++i) {
-      if (lp[i] < -1 || lp[i] >= N || lp[i] == i) return bad("link out of range");
-      if (lp[i] >= 0 && lp[lp[i]] >= 0) return bad("links must be one hop (a root is a leaf)");
-      links.push_back(int32_t(lp[i]));
-    }
+    for (int64_t i = 0; i < N; ++i) links.push_back(int32_t(lp[i]));
   }
 
   coding::ContainerWriter w(config.hash());
@@ -594,10 +593,11 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
       return corrupt("LINK holds " + std::to_string(links.size()) + " entries for " +
                      std::to_string(N) + " anchors");
     bool any_leaf = false;
-    for (int32_t r : links) {
-      if (r >= 0 && links[size_t(r)] >= 0) return corrupt("LINK: a root is itself a leaf");
-      any_leaf |= r >= 0;
-    }
+    for (int32_t r : links) any_leaf |= r >= 0;
+    if (Status st = check_links(
+            torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong), {});
+        !st.ok())
+      return corrupt("LINK: " + st.message());
     // No leaves (a compact LINK written for a link strategy that linked nothing): no links.
     if (any_leaf)
       m.links = torch::from_blob(links.data(), {int64_t(N)}, torch::kInt).to(torch::kLong);

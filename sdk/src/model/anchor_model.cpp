@@ -1194,6 +1194,8 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
     CRPGS_RETURN_IF_ERROR(get("links", m.links));
     if (m.links.dim() != 1 || m.links.size(0) != m.anchor.size(0))
       return Status(StatusCode::kInvalidArgument, "checkpoint links do not match the anchors");
+    if (Status st = check_links(m.links, {}); !st.ok())
+      return Status(StatusCode::kInvalidArgument, "checkpoint " + st.message());
   }
   for (auto& g : m.groups) {
     torch::Tensor p;

@@ -766,6 +766,16 @@ StatusOr<LinkOptions> link_options_from_config(const Config& resolved, const Sch
   if (schedule.link_builds.empty())
     return Status(StatusCode::kInvalidConfig,
                   "train.link_builds: a `links` component needs at least one build iteration");
+  // Growing and pruning (before update_until) clear the links; a build after the last
+  // iteration never happens. Either way the run would code no links and say nothing.
+  for (int b : schedule.link_builds)
+    if (b < schedule.update_until || b > schedule.iterations)
+      return Status(StatusCode::kInvalidConfig,
+                    "train.link_builds: a build at iteration " + std::to_string(b) +
+                        " (after the schedule's scaling) is outside [" +
+                        std::to_string(schedule.update_until) + ", " +
+                        std::to_string(schedule.iterations) +
+                        "]: the end of growing and pruning (update_until) to the last iteration");
   o.lr_start = *std::min_element(schedule.link_builds.begin(), schedule.link_builds.end());
   o.lr_end = std::max(o.lr_start + 1, schedule.iterations);
   return o;
