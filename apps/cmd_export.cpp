@@ -58,7 +58,8 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
 }
 
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
-                   int degree, int directions, double view_weight, int threads) {
+                   int degree, int directions, double view_weight, const std::string& opacity_from,
+                   int threads) {
   if (Status st = check_output_is_not_input(out, source); !st.ok()) return report_error(st);
   ComponentRegistry r = load_registry(g);
   auto src = load_model_source(g, r, source, resolve_threads(threads));
@@ -69,6 +70,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   opt.sh_degree = degree;
   opt.directions = directions;
   opt.view_weight = view_weight;
+  opt.opacity_over_views = opacity_from == "views";
   for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
   if (opt.camera_centers.empty()) {
     // The test views then give the representative views only: fitting the colours they see
@@ -86,9 +88,10 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::error_code ec;
   std::printf(
-      "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), %llu bytes, "
-      "%.2f s\n",
+      "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), opacity from "
+      "the %s, %llu bytes, %.2f s\n",
       out.c_str(), baked->size(), degree, directions, opt.view_weight,
+      opt.opacity_over_views ? "views" : "representative view",
       static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
   if (ds.test.empty()) return 0;
   // Read the file back: what is measured is what was written.
@@ -153,6 +156,7 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
   static std::string source, out, ply, config, png_dir;
   static int degree = 3, directions = 96, threads = 0;
   static double view_weight = BakeOptions{}.view_weight;
+  static std::string opacity_from = BakeOptions{}.opacity_over_views ? "views" : "representative";
   auto* ex = app.add_subcommand(
       "export",
       "Bake an anchor model (a .crpgs file or a training run) into a standard 3DGS .ply (INRIA "
@@ -167,11 +171,15 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
                  "share of the SH fit on the training cameras' own views (the rest on the sphere "
                  "of directions); 0 fits the sphere alone")
       ->check(CLI::Range(0.0, kMaxViewWeight));
+  ex->add_option("--opacity", opacity_from,
+                 "opacity of the exported Gaussians: 'views' (the mean over the training "
+                 "cameras' views) or 'representative' (the anchor's mean view only)")
+      ->check(CLI::IsMember({"views", "representative"}));
   add_threads_option(ex, threads);
   ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
   ex->callback([&g] {
     throw CLI::RuntimeError(
-        export_command(g, source, out, degree, directions, view_weight, threads));
+        export_command(g, source, out, degree, directions, view_weight, opacity_from, threads));
   });
 
   auto* im = app.add_subcommand(

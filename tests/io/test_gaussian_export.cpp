@@ -226,6 +226,41 @@ TEST(GaussianExport, WeightingTheCamerasViewsFitsTheColoursTheySee) {
   }
 }
 
+TEST(GaussianExport, OpacityOverViewsIsTheMeanOfWhatTheCamerasSee) {
+  // Each exported Gaussian's opacity is the mean over the cameras of the model's opacity for it
+  // (0 where the model gives it none), and a Gaussian no camera sees is not exported.
+  Scene s;
+  auto m = s.model(SceneEffects{});
+  torch::NoGradGuard ng;
+  torch::manual_seed(3);
+  m->offsets().copy_(torch::randn(m->offsets().sizes()));  // distinct means, to match them
+  auto opt = s.bake(0);
+  opt.opacity_over_views = true;
+  auto b = bake_gaussians(*m, opt);
+  ASSERT_TRUE(b.ok()) << b.status().message();
+  std::map<std::array<float, 3>, size_t> row;
+  for (size_t g = 0; g < b->size(); ++g)
+    row[{b->means[3 * g], b->means[3 * g + 1], b->means[3 * g + 2]}] = g;
+  std::vector<double> sum(b->size(), 0.0);
+  RenderSettings rs;
+  for (const auto& v : s.ds.train) {
+    auto gen = m->generate(v.camera, -1, *s.raster, rs, false).batch;
+    auto mu = gen.means.contiguous();
+    auto op = gen.opacities.contiguous();
+    for (int64_t g = 0; g < mu.size(0); ++g) {
+      const float* p = mu.data_ptr<float>() + 3 * g;
+      auto it = row.find({p[0], p[1], p[2]});
+      ASSERT_NE(it, row.end()) << "a Gaussian a camera sees was not exported";
+      sum[it->second] += op.data_ptr<float>()[g];
+    }
+  }
+  const double cameras = double(s.ds.train.size());
+  for (size_t g = 0; g < b->size(); ++g) {
+    ASSERT_GT(sum[g], 0.0) << "exported, but no camera sees it";
+    EXPECT_NEAR(1.0 / (1.0 + std::exp(-double(b->opacity[g]))), sum[g] / cameras, 1e-5) << g;
+  }
+}
+
 TEST(GaussianExport, RefusesBadOptions) {
   Scene s;
   auto m = s.model(SceneEffects{});

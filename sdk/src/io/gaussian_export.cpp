@@ -150,8 +150,22 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
     return parts.size() == 1 ? f : torch::cat(parts, 1);
   };
   const auto mlps = model.mlp_tensors();
-  auto in_rep = view_input(feat, rep_dir, rep_dist);                    // [M, C]
-  auto opacity = torch::tanh(mlp(mlps, "mlp_opacity", in_rep)) * mask;  // [M, K]
+  auto in_rep = view_input(feat, rep_dir, rep_dist);  // [M, C]
+  // Opacity: the mean over the cameras' own views of what each would see (where the model gives
+  // a Gaussian no opacity it does not exist for that camera: 0), or the representative view's.
+  torch::Tensor opacity;  // [M, K]
+  if (options.opacity_over_views) {
+    opacity = torch::zeros({M, K});
+    for (const auto& c : options.camera_centers) {
+      auto d = pos - torch::tensor({float(c[0]), float(c[1]), float(c[2])});  // [M, 3]
+      auto n = d.norm(2, 1, true);
+      opacity += torch::tanh(mlp(mlps, "mlp_opacity", view_input(feat, d / n.clamp_min(1e-12), n)))
+                     .clamp_min(0);
+    }
+    opacity = opacity / double(options.camera_centers.size()) * mask;
+  } else {
+    opacity = torch::tanh(mlp(mlps, "mlp_opacity", in_rep)) * mask;
+  }
   auto cov = mlp(mlps, "mlp_cov", in_rep).reshape({M * K, 7});
   auto keep = (opacity.reshape({M * K}) > 0).nonzero().squeeze(1);  // [G]
   const int64_t G = keep.size(0);
