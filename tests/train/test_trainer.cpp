@@ -71,6 +71,18 @@ TEST(Schedule, FastScalesEveryBoundary) {
   EXPECT_EQ(Schedule::full().iterations, 30000);
 }
 
+TEST(Schedule, AnchorsAdjustEveryIntervalFromUpdateFromToUpdateUntilOutsideThePause) {
+  const Schedule f = Schedule::full();  // HAC: every 100 from 1500 to 15000, paused 3000..3999
+  std::vector<int> at;
+  for (int it = 1; it <= f.iterations; ++it)
+    if (f.adjusts_at(it)) at.push_back(it);
+  EXPECT_EQ(at.front(), 1600);
+  EXPECT_EQ(at.back(), 14900);
+  EXPECT_EQ(std::count(at.begin(), at.end(), 3000) + std::count(at.begin(), at.end(), 3900), 0);
+  EXPECT_EQ(std::count(at.begin(), at.end(), 4000), 1);
+  EXPECT_EQ(at.size(), size_t(134 - 10));  // 1600..14900 in steps of 100, less 3000..3900
+}
+
 TEST(Ssim, MatchesTheMetricsLibraryAndIsOneForEqualImages) {
   auto a = torch::rand({40, 50, 3});
   auto b = (a + 0.1 * torch::randn({40, 50, 3})).clamp(0, 1);

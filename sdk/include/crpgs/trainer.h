@@ -52,6 +52,11 @@ struct Schedule {
   /// Every boundary (and the iteration count) of full() multiplied by `factor` (0 < f <= 1),
   /// rounded, with update_interval >= 1.
   static Schedule scaled(double factor);
+  /// Anchors grow and are pruned at the end of iteration `it`.
+  bool adjusts_at(int it) const {
+    return it > start_stat && it > update_from && it < update_until && it % update_interval == 0 &&
+           !(it >= pause_from && it < pause_until);
+  }
   /// The same scaling applied to this schedule (e.g. a 40k CRP-GS schedule).
   Schedule scaled_by(double factor) const;
 };

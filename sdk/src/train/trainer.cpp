@@ -179,8 +179,20 @@ StatusOr<double> Trainer::step() {
   }
   auto t3 = Clock::now();
   const double loss_value = loss.item<double>();
+  // Growing/pruning on schedule (statistics of this iteration first when it has valid ones): a
+  // discarded iteration keeps the schedule of an undisturbed run, without its own statistics.
+  auto densify = [&](bool with_statistics) {
+    torch::NoGradGuard no_grad;
+    if (it < sc.update_until && it > sc.start_stat) {
+      if (with_statistics) model_->accumulate_statistics(ng, out, view.camera);
+      if (sc.adjusts_at(it)) model_->adjust_anchors(sc.update_interval, gen_);
+    } else if (it == sc.update_until) {
+      model_->reset_statistics();
+    }
+  };
   auto discard = [&](const std::string& what) {
     model_->zero_grad();
+    densify(false);
     iteration_ = it;
     return Status(StatusCode::kNonFinite, "iteration " + std::to_string(it) + " (view '" +
                                               view.camera.name + "'): " + what);
@@ -208,16 +220,9 @@ StatusOr<double> Trainer::step() {
     }
   }
   auto t4 = Clock::now();
+  densify(true);
   {
     torch::NoGradGuard no_grad;
-    if (it < sc.update_until && it > sc.start_stat) {
-      model_->accumulate_statistics(ng, out, view.camera);
-      const bool paused = it >= sc.pause_from && it < sc.pause_until;
-      if (!paused && it > sc.update_from && it % sc.update_interval == 0)
-        model_->adjust_anchors(sc.update_interval, gen_);
-    } else if (it == sc.update_until) {
-      model_->reset_statistics();
-    }
     model_->optimizer_step();
   }
   auto t5 = Clock::now();
@@ -541,10 +546,7 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
       p.bits_per_param = last_rate_.rate;
       p.has_test_psnr = has_psnr;
       p.test_psnr = psnr;
-      const bool adjust_step = it > sc.update_from && it < sc.update_until &&
-                               it % sc.update_interval == 0 &&
-                               !(it >= sc.pause_from && it < sc.pause_until);
-      if (p.anchors != anchors_before || adjust_step)
+      if (p.anchors != anchors_before || sc.adjusts_at(it))
         progress->on_adjust(it, std::max<int64_t>(0, p.anchors - anchors_before),
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
       progress->on_iteration(p);
