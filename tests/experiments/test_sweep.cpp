@@ -272,6 +272,11 @@ TEST(Sweep, ResumesAfterTheSweepItselfWasKilled) {
   int status = 0;
   waitpid(child, &status, 0);
   EXPECT_TRUE(WIFSIGNALED(status));
+  // The runner held the run's lock (handed over by the sweep) and is not our child: the kernel
+  // releases the lock when it has died, which may be a moment after the sweep.
+  for (int i = 0; i < 200 && !directory_lock_holder(hung.dir).empty(); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_EQ(directory_lock_holder(hung.dir), "") << "the killed runner still holds the run";
 
   EXPECT_EQ(run_state(s.runs[0].dir), RunState::kComplete);
   EXPECT_EQ(run_state(s.runs[1].dir), RunState::kComplete);
