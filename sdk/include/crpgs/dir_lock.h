@@ -12,7 +12,7 @@ namespace crpgs {
 
 /// An exclusive lock on DIR/.lock (a Linux open-file-description lock): released when the object
 /// is destroyed, and by the kernel when the process ends in any way, so a crash leaves no stale
-/// lock. Not inherited by spawned processes, except as hand_to_child() arranges.
+/// lock. Not inherited by spawned processes, except as fd() and child_environment() arrange.
 class DirectoryLock {
  public:
   DirectoryLock() = default;

@@ -151,18 +151,24 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
   };
   const auto mlps = model.mlp_tensors();
   auto in_rep = view_input(feat, rep_dir, rep_dist);  // [M, C]
+  const int64_t n_cameras = int64_t(options.camera_centers.size());
+  auto centers = torch::empty({n_cameras, 3});
+  auto centers_acc = centers.accessor<float, 2>();
+  for (int64_t c = 0; c < n_cameras; ++c)
+    for (int i = 0; i < 3; ++i) centers_acc[c][i] = float(options.camera_centers[size_t(c)][i]);
+  auto unit = [](const torch::Tensor& v) { return v / v.norm(2, -1, true).clamp_min(1e-12); };
   // Opacity: the mean over the cameras' own views of what each would see (where the model gives
   // a Gaussian no opacity it does not exist for that camera: 0), or the representative view's.
   torch::Tensor opacity;  // [M, K]
   if (options.opacity_over_views) {
     opacity = torch::zeros({M, K});
-    for (const auto& c : options.camera_centers) {
-      auto d = pos - torch::tensor({float(c[0]), float(c[1]), float(c[2])});  // [M, 3]
-      auto n = d.norm(2, 1, true);
-      opacity += torch::tanh(mlp(mlps, "mlp_opacity", view_input(feat, d / n.clamp_min(1e-12), n)))
-                     .clamp_min(0);
+    for (int64_t c = 0; c < n_cameras; ++c) {
+      auto d = pos - centers[c];  // [M, 3]
+      opacity +=
+          torch::tanh(mlp(mlps, "mlp_opacity", view_input(feat, unit(d), d.norm(2, 1, true))))
+              .clamp_min(0);
     }
-    opacity = opacity / double(options.camera_centers.size()) * mask;
+    opacity = opacity / double(n_cameras) * mask;
   } else {
     opacity = torch::tanh(mlp(mlps, "mlp_opacity", in_rep)) * mask;
   }
@@ -184,13 +190,9 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
   // SH fitted per Gaussian.
   const int S = options.directions;
   const double w = options.view_weight;
-  const int64_t C = w > 0 ? int64_t(options.camera_centers.size()) : 0;
+  const int64_t C = w > 0 ? n_cameras : 0;            // cameras in the colour fit
   auto dirs = fibonacci_directions(S);                // [S, 3]
   auto sphere_basis = sh_basis_matrix(dirs, degree);  // [S, B]
-  auto centers = torch::empty({C, 3});
-  for (int64_t c = 0; c < C; ++c)
-    for (int i = 0; i < 3; ++i) centers[c][i] = float(options.camera_centers[size_t(c)][i]);
-  auto unit = [](const torch::Tensor& v) { return v / v.norm(2, -1, true).clamp_min(1e-12); };
   torch::Tensor app;
   if (fx.appearance_dim > 0) app = mlps.at("appearance").mean(0);  // as camera_index = -1
   const int nb = sh_coeff_count(degree);
