@@ -1,9 +1,10 @@
 // Benchmarks of the anchor-link strategies (crpgs/links.h): candidate retrieval and greedy
 // matching for link_cohs (cosine top-10, τ = 1.0 .. 0.8) and link_distance (10 nearest, one
 // pass) on N random anchors with 30-D features around 2000 cluster directions, uniform random
-// positions and ~70% active. Arguments: {N, threads}. Counters: leaves, and the estimated peak
-// working memory of the retrieval in MiB (similarity block + feature copies, or grid + lists).
-// Results are recorded by hand in bench/results/links.md.
+// positions and ~70% active; BM_DistanceCandidatesClustered puts 99.9% of the anchors in a cube
+// 1e-4 of the scene's extent (a dense object with far background anchors). Arguments: {N, threads}.
+// Counters: leaves, and the estimated peak working memory of the retrieval in MiB (similarity block
+// + feature copies, or grid + lists). Results are recorded by hand in bench/results/links.md.
 #include <benchmark/benchmark.h>
 
 #include <ATen/Parallel.h>
@@ -79,10 +80,24 @@ void BM_DistanceCandidates(benchmark::State& state) {
   const auto& in = inputs(state.range(0));
   for (auto _ : state)
     benchmark::DoNotOptimize(ok(crpgs::nearest_candidates(in.positions, in.active, 10)));
-  // float64 positions, grid (<= 2N + 1 cells), per-point cell ids, [N, 10] index + distance.
+  // float64 positions, k-d tree (point order, <= N / 2 nodes of 80 B), [N, 10] index + distance
+  // lists and the returned [N, 10] int64 + float32 candidates.
   const double n = double(state.range(0));
-  state.counters["peak_MiB"] =
-      (24 * n + 8 * (2 * n + 1) + 16 * n + 10 * (8 + 8 + 4) * n) / (1 << 20);
+  state.counters["peak_MiB"] = (24 * n + 8 * n + 40 * n + 10 * (8 + 8 + 8 + 4) * n) / (1 << 20);
+}
+
+/// 99.9% of the points in [0, 0.01]^3, the rest in [0, 100]^3: a uniform grid sized by the bounding
+/// box puts the whole cluster into one cell.
+void BM_DistanceCandidatesClustered(benchmark::State& state) {
+  at::set_num_threads(int(state.range(1)));
+  const auto& in = inputs(state.range(0));
+  torch::manual_seed(1);
+  const int64_t n = state.range(0);
+  const auto far = torch::rand({n}) < 0.001;
+  const auto positions =
+      torch::where(far.unsqueeze(1), torch::rand({n, 3}) * 100, torch::rand({n, 3}) * 0.01);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(ok(crpgs::nearest_candidates(positions, in.active, 10)));
 }
 
 void BM_DistanceMatching(benchmark::State& state) {
@@ -116,6 +131,12 @@ BENCHMARK(BM_DistanceCandidates)
     ->Args({500000, 2})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(3)
+    ->UseRealTime();
+BENCHMARK(BM_DistanceCandidatesClustered)
+    ->Args({20000, 1})
+    ->Args({100000, 1})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1)
     ->UseRealTime();
 BENCHMARK(BM_DistanceMatching)
     ->Args({100000, 1})

@@ -166,7 +166,9 @@ TEST(LinksNearest, MatchesBruteForceOnSpreadFlatAndDuplicatePoints) {
   auto flat = torch::rand({1500, 3}) * torch::tensor({5.f, 5.f, 0.f});
   auto dup = torch::rand({300, 3}).repeat({3, 1});  // exact duplicates: ties broken by index
   auto outlier = torch::cat({torch::rand({500, 3}), torch::tensor({{1e4f, 0.f, 0.f}})});
-  for (const auto& p : {spread, flat, dup, outlier}) {
+  // A dense object and far background: 1e-4 of the extent holds 99% of the points.
+  auto cluster = torch::cat({torch::rand({1200, 3}) * 1e-2, torch::rand({12, 3}) * 100});
+  for (const auto& p : {spread, flat, dup, outlier, cluster}) {
     const int64_t n = p.size(0);
     auto active = random_mask(n, 0.7, 9);
     auto nn = value_or_die(nearest_neighbors(p, active, 7, false));

@@ -29,7 +29,8 @@ struct LinkCandidates {
 
 /// k nearest neighbours among the active points: index [N, k] int64 and squared distance
 /// [N, k] float64, ordered by (distance, index); -1 / +inf where there are fewer than k, and in
-/// inactive rows. Exact (uniform grid, ring search), O(N·k) for well spread points.
+/// inactive rows. Exact (k-d tree), O(N log N) to build and about O(k log N) per query for any
+/// distribution of the points.
 struct NeighborLists {
   torch::Tensor index;    ///< [N, k] int64
   torch::Tensor sq_dist;  ///< [N, k] float64

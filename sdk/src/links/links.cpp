@@ -20,6 +20,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <utility>
 
 namespace crpgs {
 namespace {
@@ -77,67 +78,76 @@ struct TopList {
   }
 };
 
-/// Uniform grid over a point set: CSR cell lists, points ascending within a cell.
-struct Grid {
-  double lo[3] = {0, 0, 0};
-  double cell = 1;
-  int64_t dims[3] = {1, 1, 1};
-  std::vector<int64_t> start;   // [cells + 1]
-  std::vector<int64_t> member;  // [n] positions into the point list
-  int64_t coord(double v, int axis) const {
-    const double c = std::floor((v - lo[axis]) / cell);
-    if (!(c > 0)) return 0;
-    return std::min<int64_t>(int64_t(c), dims[axis] - 1);
-  }
-  int64_t key(int64_t x, int64_t y, int64_t z) const { return (x * dims[1] + y) * dims[2] + z; }
-};
+/// k-d tree over the active points: median splits on the widest axis, leaves of at most kLeaf
+/// points, each node with its tight bounding box and smallest point index. Depth O(log n) for any
+/// distribution; a uniform grid sized by the bounding box put a dense object with a few far
+/// anchors into one cell and scanned it for every query (O(n²)).
+struct KdTree {
+  static constexpr int64_t kLeaf = 8;
+  struct Node {
+    double lo[3], hi[3];
+    int64_t begin, end;  // range of `order`
+    int64_t child = -1;  // first of two consecutive children; -1 for a leaf
+    int64_t min_index;
+  };
+  std::vector<Node> nodes;
+  std::vector<int64_t> order;  // point indices, grouped by node
 
-/// Cell size: the smallest (log-bisection) whose grid has at most ~2 cells per point, so that
-/// flat or elongated point sets still get a fine grid along the axes they span.
-Grid build_grid(const double* P, const std::vector<int64_t>& ids) {
-  Grid g;
-  const int64_t n = int64_t(ids.size());
-  double hi[3] = {-kInf, -kInf, -kInf};
-  for (int a = 0; a < 3; ++a) g.lo[a] = kInf;
-  for (int64_t i : ids)
-    for (int a = 0; a < 3; ++a) {
-      g.lo[a] = std::min(g.lo[a], P[3 * i + a]);
-      hi[a] = std::max(hi[a], P[3 * i + a]);
+  KdTree(const double* P, std::vector<int64_t> ids) : order(std::move(ids)) {
+    nodes.reserve(size_t(4 * order.size() / kLeaf + 2));
+    nodes.push_back(Node{});
+    nodes[0].begin = 0;
+    nodes[0].end = int64_t(order.size());
+    std::vector<int64_t> todo{0};
+    while (!todo.empty()) {
+      const int64_t id = todo.back();
+      todo.pop_back();
+      Node nd = nodes[size_t(id)];
+      for (int a = 0; a < 3; ++a) nd.lo[a] = kInf, nd.hi[a] = -kInf;
+      nd.min_index = std::numeric_limits<int64_t>::max();
+      for (int64_t s = nd.begin; s < nd.end; ++s) {
+        const int64_t j = order[size_t(s)];
+        nd.min_index = std::min(nd.min_index, j);
+        for (int a = 0; a < 3; ++a) {
+          nd.lo[a] = std::min(nd.lo[a], P[3 * j + a]);
+          nd.hi[a] = std::max(nd.hi[a], P[3 * j + a]);
+        }
+      }
+      if (nd.end - nd.begin > kLeaf) {
+        int axis = 0;
+        for (int a = 1; a < 3; ++a)
+          if (nd.hi[a] - nd.lo[a] > nd.hi[axis] - nd.lo[axis]) axis = a;
+        // (coordinate, index) order: identical points split by index, so a block of
+        // duplicates still gives a balanced tree whose low-index leaves come first.
+        const int64_t mid = nd.begin + (nd.end - nd.begin) / 2;
+        std::nth_element(order.begin() + nd.begin, order.begin() + mid, order.begin() + nd.end,
+                         [&](int64_t x, int64_t y) {
+                           const double cx = P[3 * x + axis], cy = P[3 * y + axis];
+                           return cx != cy ? cx < cy : x < y;
+                         });
+        nd.child = int64_t(nodes.size());
+        Node left{}, right{};
+        left.begin = nd.begin;
+        left.end = right.begin = mid;
+        right.end = nd.end;
+        nodes.push_back(left);
+        nodes.push_back(right);
+        todo.push_back(nd.child);
+        todo.push_back(nd.child + 1);
+      }
+      nodes[size_t(id)] = nd;
     }
-  double ext[3], max_ext = 0;
-  for (int a = 0; a < 3; ++a) {
-    ext[a] = hi[a] - g.lo[a];
-    max_ext = std::max(max_ext, ext[a]);
   }
-  if (max_ext > 0) {
-    const double target = 2.0 * double(n) + 1;
-    auto cells = [&](double c) {
-      double t = 1;
-      for (double e : ext) t *= std::floor(e / c) + 1;
-      return t;
-    };
-    double lo_c = max_ext / (target + 1), hi_c = max_ext * 2;  // cells(hi_c) == 1
-    for (int it = 0; it < 60 && hi_c > lo_c * (1 + 1e-9); ++it) {
-      const double mid = std::sqrt(lo_c * hi_c);
-      (cells(mid) <= target ? hi_c : lo_c) = mid;
-    }
-    g.cell = hi_c;
-    for (int a = 0; a < 3; ++a) g.dims[a] = int64_t(std::floor(ext[a] / g.cell)) + 1;
+
+  /// Squared distance from p to the node's box, deflated by 1e-12 so that rounding (or FMA
+  /// contraction) can never make it exceed the computed distance of a point inside.
+  double lower_bound(const Node& nd, const double* p) const {
+    double g[3];
+    for (int a = 0; a < 3; ++a)
+      g[a] = p[a] < nd.lo[a] ? nd.lo[a] - p[a] : (p[a] > nd.hi[a] ? p[a] - nd.hi[a] : 0.0);
+    return (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) * (1 - 1e-12);
   }
-  const int64_t ncells = g.dims[0] * g.dims[1] * g.dims[2];
-  std::vector<int64_t> cell_of(static_cast<size_t>(n));
-  g.start.assign(size_t(ncells + 1), 0);
-  for (int64_t v = 0; v < n; ++v) {
-    const double* p = P + 3 * ids[size_t(v)];
-    cell_of[size_t(v)] = g.key(g.coord(p[0], 0), g.coord(p[1], 1), g.coord(p[2], 2));
-    ++g.start[size_t(cell_of[size_t(v)] + 1)];
-  }
-  for (int64_t c = 0; c < ncells; ++c) g.start[size_t(c + 1)] += g.start[size_t(c)];
-  g.member.resize(size_t(n));
-  std::vector<int64_t> fill(g.start.begin(), g.start.end() - 1);
-  for (int64_t v = 0; v < n; ++v) g.member[size_t(fill[size_t(cell_of[size_t(v)])]++)] = v;
-  return g;
-}
+};
 
 }  // namespace
 
@@ -162,40 +172,49 @@ StatusOr<NeighborLists> nearest_neighbors(const torch::Tensor& points, const tor
   out.index = torch::full({n, k}, -1, torch::kLong);
   out.sq_dist = torch::full({n, k}, kInf, torch::kDouble);
   if (k == 0 || ids.empty()) return out;
-  const Grid g = build_grid(P, ids);
-  const int64_t max_dim = std::max({g.dims[0], g.dims[1], g.dims[2]});
+  const int64_t na = int64_t(ids.size());
+  const KdTree tree(P, std::move(ids));
   int64_t* OI = out.index.data_ptr<int64_t>();
   double* OD = out.sq_dist.data_ptr<double>();
   const int64_t others = include_self ? k - 1 : k;
-  at::parallel_for(0, int64_t(ids.size()), 64, [&](int64_t begin, int64_t end) {
+  // Queries in tree order, so consecutive queries share the nodes they visit.
+  at::parallel_for(0, na, 64, [&](int64_t begin, int64_t end) {
     TopList best(others, /*larger=*/false);
+    std::vector<std::pair<double, int64_t>> stack;  // (lower bound, node)
     for (int64_t v = begin; v < end; ++v) {
-      const int64_t i = ids[size_t(v)];
+      const int64_t i = tree.order[size_t(v)];
       const double* p = P + 3 * i;
-      const int64_t c[3] = {g.coord(p[0], 0), g.coord(p[1], 1), g.coord(p[2], 2)};
       best.count = 0;
-      auto visit = [&](int64_t x, int64_t y, int64_t z) {
-        const int64_t key = g.key(x, y, z);
-        for (int64_t s = g.start[size_t(key)]; s < g.start[size_t(key + 1)]; ++s) {
-          const int64_t j = ids[size_t(g.member[size_t(s)])];
-          if (j == i) continue;
-          const double dx = P[3 * j] - p[0], dy = P[3 * j + 1] - p[1], dz = P[3 * j + 2] - p[2];
-          best.offer(dx * dx + dy * dy + dz * dz, j);
-        }
+      // A node can hold a better point than the current k-th (distance, index) only if its bound
+      // is below that distance, or equal to it with a smaller index somewhere inside.
+      auto may_improve = [&](double bound, const KdTree::Node& nd) {
+        if (!best.full()) return true;
+        const double worst = best.worst();
+        return bound < worst || (bound == worst && nd.min_index < best.idx[size_t(best.cap - 1)]);
       };
-      for (int64_t r = 0; r <= max_dim && others > 0; ++r) {
-        for (int64_t x = std::max<int64_t>(c[0] - r, 0); x <= std::min(c[0] + r, g.dims[0] - 1);
-             ++x)
-          for (int64_t y = std::max<int64_t>(c[1] - r, 0); y <= std::min(c[1] + r, g.dims[1] - 1);
-               ++y) {
-            const bool edge = std::abs(x - c[0]) == r || std::abs(y - c[1]) == r;
-            for (int64_t z = c[2] - r; z <= c[2] + r; z += (edge || r == 0) ? 1 : 2 * r)
-              if (z >= 0 && z < g.dims[2]) visit(x, y, z);
+      stack.assign(1, {tree.lower_bound(tree.nodes[0], p), 0});
+      while (!stack.empty() && others > 0) {
+        const auto [bound, id] = stack.back();
+        stack.pop_back();
+        const KdTree::Node& nd = tree.nodes[size_t(id)];
+        if (!may_improve(bound, nd)) continue;
+        if (nd.child < 0) {
+          for (int64_t s = nd.begin; s < nd.end; ++s) {
+            const int64_t j = tree.order[size_t(s)];
+            if (j == i) continue;
+            const double dx = P[3 * j] - p[0], dy = P[3 * j + 1] - p[1], dz = P[3 * j + 2] - p[2];
+            best.offer(dx * dx + dy * dy + dz * dz, j);
           }
-        // Unvisited points lie in rings > r: at least r cells away (1% margin for rounding of
-        // the cell coordinates), so a strictly closer k-th neighbour is final.
-        const double reach = (double(r) - 0.01) * g.cell;
-        if (best.full() && r > 0 && best.worst() < reach * reach) break;
+          continue;
+        }
+        const KdTree::Node& a = tree.nodes[size_t(nd.child)];
+        const KdTree::Node& b = tree.nodes[size_t(nd.child + 1)];
+        std::pair<double, int64_t> near{tree.lower_bound(a, p), nd.child};
+        std::pair<double, int64_t> far{tree.lower_bound(b, p), nd.child + 1};
+        if (far.first < near.first || (far.first == near.first && b.min_index < a.min_index))
+          std::swap(near, far);
+        stack.push_back(far);  // popped after the nearer subtree has tightened the bound
+        stack.push_back(near);
       }
       int64_t slot = 0;
       if (include_self) {

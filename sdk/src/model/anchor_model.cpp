@@ -295,7 +295,7 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
 }
 
 torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points) {
-  // The exact grid kNN of the link strategies; fewer than 3 other points count as distance 0.
+  // The exact kNN of the link strategies; fewer than 3 other points count as distance 0.
   auto nn = nearest_neighbors(points.to(torch::kFloat), torch::Tensor(), 3, false);
   TORCH_CHECK(nn.ok(), nn.status().to_string());
   auto d2 = nn->sq_dist.masked_fill(torch::isinf(nn->sq_dist), 0.0);  // [N, 3]
