@@ -534,5 +534,43 @@ TEST(AnchorModel, StateDictRoundTripRestoresEverything) {
   for (const auto& kv : st) EXPECT_TRUE(torch::equal(kv.second, st2.at(kv.first))) << kv.first;
 }
 
+TEST(AnchorModel, RefusedStateDictLeavesTheModelUnchanged) {
+  SmallScene s;
+  auto m = make_model(s, small_options());
+  accumulate(*m, s, 3);
+  const auto good = m->state_dict();
+  auto other = make_model(s, small_options(), /*seed=*/99);
+  const auto before = other->state_dict();
+  auto last = good.end();
+  --last;  // the last key in order: every other tensor would be committed before it, if any was
+  const int64_t n = good.at("anchor").size(0);
+  std::vector<std::pair<std::string, std::map<std::string, torch::Tensor>>> broken;
+  auto with = [&](const std::string& what, const std::string& key, torch::Tensor t) {
+    auto b = good;
+    if (t.defined())
+      b[key] = t;
+    else
+      b.erase(key);
+    broken.emplace_back(what, b);
+  };
+  with("missing last key", last->first, {});
+  with("last key reshaped", last->first, last->second.reshape({-1, 1}));
+  with("feature rows != anchors", "param.feature", good.at("param.feature").slice(0, 0, n - 1));
+  with("adam moment shape", "adam_m.offset", good.at("adam_m.offset").slice(0, 0, n - 1));
+  with("stat rows", "stat.offset_denom", good.at("stat.offset_denom").slice(0, 1));
+  with("double anchors", "anchor", good.at("anchor").to(torch::kDouble));
+  with("zero voxel", "voxel_size", torch::tensor(0.0, torch::kDouble));
+  with("links shape", "links", torch::full({n + 1}, -1, torch::kLong));
+  for (const auto& [what, state] : broken) {
+    Status st = other->load_state_dict(state);
+    EXPECT_FALSE(st.ok()) << what;
+    const auto after = other->state_dict();
+    ASSERT_EQ(after.size(), before.size()) << what;
+    for (const auto& kv : before)
+      EXPECT_TRUE(torch::equal(kv.second, after.at(kv.first))) << what << ": " << kv.first;
+  }
+  EXPECT_TRUE(other->load_state_dict(good).ok());
+}
+
 }  // namespace
 }  // namespace crpgs

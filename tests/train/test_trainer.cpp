@@ -220,6 +220,50 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
   for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
 }
 
+TEST(Trainer, RefusedCheckpointLeavesTheTrainerUnchanged) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(20);
+  to.seed = 3;
+  to.output_dir = tmp_dir("refused");
+  auto source = trainer(ds, to);
+  for (int i = 0; i < 12; ++i) ASSERT_TRUE(source->step().ok());
+  ASSERT_TRUE(source->save_checkpoint(source->checkpoint_path()).ok());
+  auto target = trainer(ds, to);
+  for (int i = 0; i < 5; ++i) ASSERT_TRUE(target->step().ok());
+  const auto before = target->model().state_dict();
+  // Rewrite the checkpoint with one entry replaced (or dropped when `value` is undefined).
+  auto rewritten = [&](const std::string& key, const torch::Tensor& value) {
+    torch::serialize::InputArchive in;
+    in.load_from(source->checkpoint_path());
+    torch::serialize::OutputArchive out;
+    for (const auto& k : in.keys()) {
+      torch::Tensor t;
+      in.read(k, t);
+      if (k != key) out.write(k, t);
+    }
+    if (value.defined()) out.write(key, value);
+    const std::string path = to.output_dir + "/rewritten.pt";
+    out.save_to(path);
+    return path;
+  };
+  const std::vector<std::pair<std::string, torch::Tensor>> broken = {
+      {"iteration", torch::Tensor()},
+      {"iteration", torch::tensor(int64_t(-3))},
+      {"rng", torch::zeros({3}, torch::kUInt8)},
+      {"model__stat__offset_denom", torch::zeros({1})},
+  };
+  for (const auto& [key, value] : broken) {
+    const std::string path = rewritten(key, value);
+    Status st = target->load_checkpoint(path);
+    EXPECT_FALSE(st.ok()) << key;
+    EXPECT_EQ(target->iteration(), 5) << key;
+    const auto after = target->model().state_dict();
+    for (const auto& kv : before)
+      EXPECT_TRUE(torch::equal(kv.second, after.at(kv.first))) << key << ": " << kv.first;
+  }
+}
+
 struct Recorder : ProgressCallback {
   std::vector<TrainingProgress> seen;
   std::vector<std::string> checkpoints;

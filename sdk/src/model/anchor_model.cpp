@@ -13,6 +13,7 @@
 #include <ATen/Parallel.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -1157,58 +1158,85 @@ const std::vector<std::string>& AnchorModel::optional_state_keys() {
 
 Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& s) {
   Impl& m = *impl_;
-  auto get = [&](const std::string& k, torch::Tensor& dst) -> Status {
+  // Everything is read and checked into copies first: on any error the model is unchanged.
+  auto bad = [](const std::string& msg) { return Status(StatusCode::kInvalidArgument, msg); };
+  auto get = [&](const std::string& k, std::vector<int64_t> shape,
+                 c10::ScalarType dtype) -> StatusOr<torch::Tensor> {
     auto it = s.find(k);
     if (it == s.end()) return Status(StatusCode::kCorruptBitstream, "checkpoint lacks '" + k + "'");
-    dst = it->second.clone();
-    return OkStatus();
+    const torch::Tensor& t = it->second;
+    if (!t.defined() || t.sizes() != c10::IntArrayRef(shape) || t.scalar_type() != dtype)
+      return bad("checkpoint tensor '" + k + "' is " +
+                 (t.defined()
+                      ? std::string(c10::toString(t.scalar_type())) + " " + c10::str(t.sizes())
+                      : std::string("undefined")) +
+                 ", expected " + c10::toString(dtype) + " " + c10::str(c10::IntArrayRef(shape)) +
+                 " (was it trained with another scene/model config?)");
+    return t.detach().clone();
   };
-  // Validate shapes of the fixed-size tensors before changing anything.
-  for (const auto& g : m.groups) {
-    auto it = s.find("param." + g.name);
-    if (it == s.end())
-      return Status(StatusCode::kCorruptBitstream, "checkpoint lacks parameter '" + g.name + "'");
-    if (!g.per_anchor && it->second.sizes() != g.param.sizes())
-      return Status(StatusCode::kInvalidArgument,
-                    "checkpoint parameter '" + g.name +
-                        "' has a different shape than the model "
-                        "(was it trained with another scene/model config?)");
-    if (g.per_anchor && it->second.sizes().slice(1) != g.param.sizes().slice(1))
-      return Status(StatusCode::kInvalidArgument,
-                    "checkpoint parameter '" + g.name + "' has a different per-anchor shape");
-  }
   torch::NoGradGuard ng;
-  CRPGS_RETURN_IF_ERROR(get("anchor", m.anchor));
-  CRPGS_RETURN_IF_ERROR(get("bounds", m.bounds));
-  torch::Tensor t;
-  CRPGS_RETURN_IF_ERROR(get("voxel_size", t));
-  m.voxel = t.item<double>();
-  CRPGS_RETURN_IF_ERROR(get("spatial_lr_scale", t));
-  m.spatial_lr_scale = t.item<double>();
-  CRPGS_RETURN_IF_ERROR(get("stat.opacity_accum", m.opacity_accum));
-  CRPGS_RETURN_IF_ERROR(get("stat.anchor_demon", m.anchor_demon));
-  CRPGS_RETURN_IF_ERROR(get("stat.offset_grad_accum", m.offset_grad_accum));
-  CRPGS_RETURN_IF_ERROR(get("stat.offset_denom", m.offset_denom));
-  m.links = torch::Tensor();
-  if (s.count("links")) {
-    CRPGS_RETURN_IF_ERROR(get("links", m.links));
-    if (m.links.dim() != 1 || m.links.size(0) != m.anchor.size(0))
-      return Status(StatusCode::kInvalidArgument, "checkpoint links do not match the anchors");
-    if (Status st = check_links(m.links, {}); !st.ok())
-      return Status(StatusCode::kInvalidArgument, "checkpoint " + st.message());
+  auto it_anchor = s.find("anchor");
+  if (it_anchor == s.end() || !it_anchor->second.defined() || it_anchor->second.dim() != 2)
+    return Status(StatusCode::kCorruptBitstream, "checkpoint lacks a [N, 3] 'anchor'");
+  const int64_t n = it_anchor->second.size(0), nk = n * m.K;
+  CRPGS_ASSIGN_OR_RETURN(torch::Tensor anchor, get("anchor", {n, 3}, torch::kFloat));
+  CRPGS_ASSIGN_OR_RETURN(torch::Tensor bounds, get("bounds", {2, 3}, torch::kFloat));
+  CRPGS_ASSIGN_OR_RETURN(torch::Tensor voxel, get("voxel_size", {}, torch::kDouble));
+  CRPGS_ASSIGN_OR_RETURN(torch::Tensor lr_scale, get("spatial_lr_scale", {}, torch::kDouble));
+  std::array<torch::Tensor, 4> stats;
+  const std::array<std::pair<const char*, int64_t>, 4> stat_rows = {{{"stat.opacity_accum", n},
+                                                                     {"stat.anchor_demon", n},
+                                                                     {"stat.offset_grad_accum", nk},
+                                                                     {"stat.offset_denom", nk}}};
+  for (size_t i = 0; i < stats.size(); ++i) {
+    CRPGS_ASSIGN_OR_RETURN(stats[i], get(stat_rows[i].first, {stat_rows[i].second}, torch::kFloat));
   }
-  for (auto& g : m.groups) {
-    torch::Tensor p;
-    CRPGS_RETURN_IF_ERROR(get("param." + g.name, p));
-    if (g.external) {
-      g.param.copy_(p);  // the component owns the tensor
-    } else {
-      g.param = p.requires_grad_(true);
-    }
-    CRPGS_RETURN_IF_ERROR(get("adam_m." + g.name, g.m));
-    CRPGS_RETURN_IF_ERROR(get("adam_v." + g.name, g.v));
-    CRPGS_RETURN_IF_ERROR(get("adam_step." + g.name, t));
-    g.step = t.item<int64_t>();
+  torch::Tensor links;
+  if (s.count("links")) {
+    CRPGS_ASSIGN_OR_RETURN(links, get("links", {n}, torch::kLong));
+    if (Status st = check_links(links, {}); !st.ok()) return bad("checkpoint " + st.message());
+  }
+  struct Staged {
+    torch::Tensor param, m, v;
+    int64_t step;
+  };
+  std::vector<Staged> staged;
+  for (const auto& g : m.groups) {
+    std::vector<int64_t> shape = g.param.sizes().vec();
+    if (g.per_anchor) shape[0] = n;
+    const auto dtype = g.param.scalar_type();
+    Staged st;
+    CRPGS_ASSIGN_OR_RETURN(st.param, get("param." + g.name, shape, dtype));
+    CRPGS_ASSIGN_OR_RETURN(st.m, get("adam_m." + g.name, shape, dtype));
+    CRPGS_ASSIGN_OR_RETURN(st.v, get("adam_v." + g.name, shape, dtype));
+    CRPGS_ASSIGN_OR_RETURN(torch::Tensor step, get("adam_step." + g.name, {}, torch::kLong));
+    st.step = step.item<int64_t>();
+    if (st.step < 0) return bad("checkpoint 'adam_step." + g.name + "' is negative");
+    staged.push_back(std::move(st));
+  }
+  const double voxel_size = voxel.item<double>(), spatial = lr_scale.item<double>();
+  if (!(voxel_size > 0) || !std::isfinite(voxel_size) || !(spatial > 0) || !std::isfinite(spatial))
+    return bad("checkpoint voxel_size / spatial_lr_scale must be finite and > 0");
+
+  // Commit: nothing below can fail.
+  m.anchor = anchor;
+  m.bounds = bounds;
+  m.voxel = voxel_size;
+  m.spatial_lr_scale = spatial;
+  m.opacity_accum = stats[0];
+  m.anchor_demon = stats[1];
+  m.offset_grad_accum = stats[2];
+  m.offset_denom = stats[3];
+  m.links = links;
+  for (size_t i = 0; i < m.groups.size(); ++i) {
+    ParamGroup& g = m.groups[i];
+    if (g.external)
+      g.param.copy_(staged[i].param);  // the component owns the tensor; same shape and dtype
+    else
+      g.param = staged[i].param.requires_grad_(true);
+    g.m = staged[i].m;
+    g.v = staged[i].v;
+    g.step = staged[i].step;
   }
   m.bind_mlps();
   return OkStatus();

@@ -322,26 +322,38 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       torch::Tensor t;
       if (ar.try_read(archive_key("model." + key), t)) state[key] = t;
     }
-    if (Status st = model_->load_state_dict(state); !st.ok())
-      return Status(st.code(), origin + ": " + st.message());
+    // The trainer's own fields are read and checked before the model takes its state (which is
+    // all or nothing), so a refused state leaves the trainer as it was.
     torch::Tensor it, rng;  // read() into a defined tensor would resize it in place
     ar.read("iteration", it);
-    iteration_ = int(it.item<int64_t>());
     ar.read("rng", rng);
-    gen_.set_state(rng);
+    if (it.numel() != 1 || it.item<int64_t>() < 0 || it.item<int64_t>() > INT32_MAX)
+      return Status(StatusCode::kCorruptBitstream, origin + ": bad iteration in the checkpoint");
+    gen_.clone().set_state(rng);  // throws on a malformed state
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
     torch::Tensor elapsed, trace, build, config, salt;
-    replay_salt_ = ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
-    state_build_id_ = ar.try_read("build_id", build) ? tensor_text(build) : "";
-    state_config_hash_ = ar.try_read("config_hash", config) ? tensor_text(config) : "";
-    if (!rollback) elapsed_ = ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
-    psnr_trace_.clear();
+    const uint64_t replay_salt =
+        ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
+    std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
+    std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
+    const double elapsed_seconds =
+        ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
+    std::vector<PsnrPoint> psnr_trace;
     if (ar.try_read("psnr_trace", trace) && trace.dim() == 2 && trace.size(1) == 3) {
       auto acc = trace.to(torch::kDouble).contiguous();
       for (int64_t i = 0; i < acc.size(0); ++i)
-        psnr_trace_.push_back(
+        psnr_trace.push_back(
             {acc[i][0].item<double>(), int(acc[i][1].item<double>()), acc[i][2].item<double>()});
     }
+    if (Status st = model_->load_state_dict(state); !st.ok())
+      return Status(st.code(), origin + ": " + st.message());
+    iteration_ = int(it.item<int64_t>());
+    gen_.set_state(rng);
+    replay_salt_ = replay_salt;
+    state_build_id_ = std::move(build_id);
+    state_config_hash_ = std::move(config_hash);
+    if (!rollback) elapsed_ = elapsed_seconds;
+    psnr_trace_ = std::move(psnr_trace);
   } catch (const std::exception& e) {
     return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + origin + ": " + e.what());
   }
