@@ -80,10 +80,33 @@ StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
 namespace {
 namespace fs = std::filesystem;
 
+/// A bitstream or decode directory holds a model built from its own config: a --set that
+/// changes anything but where the cameras come from and how to rasterize would be ignored by the
+/// model while the dataset follows it (e.g. scene.background), so it is refused.
+Status check_model_is_untouched(const Config& before, const Config& after,
+                                const std::string& assignment, const std::string& kind) {
+  const std::string key = assignment.substr(0, assignment.find('='));
+  const std::string top = key.substr(0, key.find('.'));
+  if (top == "dataset" || top == "rasterizer" || key == "train.threads") return OkStatus();
+  auto text = [&](const Config& c) {
+    YAML::Node n = YAML::Clone(c.section(top));
+    if (top == "train" && n.IsMap()) n.remove("threads");
+    return YAML::Dump(n);
+  };
+  if (text(before) == text(after)) return OkStatus();
+  return Status(StatusCode::kInvalidArgument,
+                "--set " + key + ": a " + kind +
+                    " fixes the model it holds, so only dataset.*, rasterizer.* and train.threads "
+                    "can be changed; its " +
+                    top + " settings are those it was trained with");
+}
+
 /// The model's config with the thread count and --set applied, re-resolved (a copy: YAML nodes
-/// are shared).
+/// are shared). For a bitstream or decode directory (`fixed_kind` not empty) only the dataset and
+/// rasterizer may change.
 StatusOr<Config> setup_config(const Config& resolved, const GlobalOptions& g,
-                              const ComponentRegistry& r, int threads) {
+                              const ComponentRegistry& r, int threads,
+                              const std::string& fixed_kind) {
   CRPGS_ASSIGN_OR_RETURN(Config c, Config::from_string(resolved.dump(), "<model config>"));
   const YAML::Node rast = c.section("rasterizer");
   if (threads > 0) {
@@ -92,7 +115,12 @@ StatusOr<Config> setup_config(const Config& resolved, const GlobalOptions& g,
       CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.threads=" + std::to_string(threads)));
   }
   if (!rast) CRPGS_RETURN_IF_ERROR(c.apply_override("rasterizer.type=cpu"));
-  for (const auto& s : g.sets) CRPGS_RETURN_IF_ERROR(c.apply_override(s));
+  for (const auto& s : g.sets) {
+    CRPGS_ASSIGN_OR_RETURN(Config before, Config::from_string(c.dump(), "<model config>"));
+    CRPGS_RETURN_IF_ERROR(c.apply_override(s));
+    if (!fixed_kind.empty())
+      CRPGS_RETURN_IF_ERROR(check_model_is_untouched(before, c, s, fixed_kind));
+  }
   std::error_code ec;
   CRPGS_RETURN_IF_ERROR(make_dataset_path_absolute(c, fs::current_path(ec).string()));
   return c.resolve(r);
@@ -160,9 +188,13 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
                       kDecodedModelFile + ") nor a training run directory (config.yaml)");
   }
   s.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  CRPGS_ASSIGN_OR_RETURN(Config cfg, setup_config(model_config, g, r, threads));
-  CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
   const bool run = s.kind == "run";
+  CRPGS_ASSIGN_OR_RETURN(Config cfg,
+                         setup_config(model_config, g, r, threads,
+                                      run                     ? std::string()
+                                      : s.kind == "bitstream" ? std::string("bitstream")
+                                                              : std::string("decode directory")));
+  CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
   CRPGS_ASSIGN_OR_RETURN(s.setup,
                          setup_training_and_warn(cfg, r, SetupOptions{run ? source : "", run}));
   if (run && s.setup->iteration() == 0)

@@ -90,8 +90,9 @@ struct ModelSource {
 /// Opens a .crpgs bitstream, a `crpgs decode` directory or a training run directory. The model
 /// is built from the model's own config; --set (g.sets) then applies to the config that sets up
 /// the dataset and rasterizer (e.g. dataset.path), which is refused with a message when its
-/// dataset is absent. threads > 0 sets libtorch's threads, train.threads and the rasterizer's
-/// threads; 0 keeps the config's.
+/// dataset is absent. For a bitstream or decode directory a --set that changes anything else
+/// (the model's own settings, which it would not follow) is refused. threads > 0 sets libtorch's
+/// threads, train.threads and the rasterizer's threads; 0 keeps the config's.
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads);
 

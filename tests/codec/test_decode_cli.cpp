@@ -248,6 +248,21 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
                     dir / "log.txt", &log),
             0);
   EXPECT_NE(log.find("is absent"), std::string::npos) << log;
+
+  // 5. A bitstream or decode directory fixes its model: a --set that the model would ignore
+  // while the dataset followed it is refused; the thread count, the rasterizer and a --set
+  // that changes nothing are accepted.
+  for (const std::string& src : {file, (dir / "dec1").string()}) {
+    EXPECT_NE(run_cli("eval '" + src + "' --set scene.background=[1,1,1]", dir / "log.txt", &log),
+              0);
+    EXPECT_NE(log.find("--set scene.background: a "), std::string::npos) << log;
+    EXPECT_NE(log.find("fixes the model it holds"), std::string::npos) << log;
+  }
+  ASSERT_EQ(run_cli("eval '" + file + "' --set train.threads=1 --set rasterizer.threads=1 " +
+                        "--set scene.background=[0,0,0]",
+                    dir / "log.txt", &log),
+            0)
+      << log;
 #endif
 }
 
