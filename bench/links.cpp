@@ -56,10 +56,24 @@ void BM_CohsCandidates(benchmark::State& state) {
   for (auto _ : state)
     cosine_cache()[state.range(0)] =
         ok(crpgs::cosine_candidates(in.features, in.active, 10, kBudget));
-  // Block (<= budget) + float64 [N, D] input copy + integer and float32 copies of the active rows.
+  // Block (<= budget) + float64 [N, D] input copy + integer and float32 copies of the active rows
+  // + duplicate groups (~48 B per active row with the hash map) + 16 B per row and thread of memo.
   const double block = std::min<double>(kBudget, 4.0 * na * na);
-  state.counters["peak_MiB"] =
-      (block + 8.0 * 30 * double(state.range(0)) + 12.0 * 30 * na) / (1 << 20);
+  state.counters["peak_MiB"] = (block + 8.0 * 30 * double(state.range(0)) + 12.0 * 30 * na +
+                                (48.0 + 16.0 * double(state.range(1))) * na) /
+                               (1 << 20);
+}
+
+/// 30% of the anchors share one feature vector (e.g. anchors grown from one parent and never
+/// updated since): a block of exact ties that every row of the block must rescore.
+void BM_CohsCandidatesDuplicates(benchmark::State& state) {
+  at::set_num_threads(int(state.range(1)));
+  const auto& in = inputs(state.range(0));
+  torch::manual_seed(2);
+  const auto same = (torch::rand({state.range(0)}) < 0.3).unsqueeze(1);
+  const auto features = torch::where(same, in.features[0].unsqueeze(0), in.features);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(ok(crpgs::cosine_candidates(features, in.active, 10, kBudget)));
 }
 
 void BM_CohsMatching(benchmark::State& state) {
@@ -116,6 +130,11 @@ BENCHMARK(BM_CohsCandidates)
     ->Args({100000, 1})
     ->Args({100000, 2})
     ->Args({500000, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1)
+    ->UseRealTime();
+BENCHMARK(BM_CohsCandidatesDuplicates)
+    ->Args({50000, 1})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(1)
     ->UseRealTime();

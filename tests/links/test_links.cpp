@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <set>
+#include <tuple>
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
@@ -92,6 +93,33 @@ TEST(LinksCosine, AllAnchorsIdenticalPairInIndexOrder) {
   std::vector<int64_t> expect(25, -1);
   for (int64_t t = 0; t < 12; ++t) expect[size_t(2 * t)] = 2 * t + 1;  // anchor 24 finds none
   EXPECT_EQ(to_vec(links), expect);
+}
+
+TEST(LinksCosine, BlocksOfIdenticalRowsAmongOthersMatchBruteForce) {
+  // Two blocks of identical rows (one of them scaled: same direction) among random rows, across
+  // several similarity blocks: every list is the brute-force order (cosine, |j - i|, j).
+  torch::manual_seed(11);
+  auto f = torch::randn({240, 6});
+  const auto pick = torch::rand({240});
+  f = torch::where((pick < 0.3).unsqueeze(1), f[0].unsqueeze(0), f);
+  f = torch::where((pick > 0.8).unsqueeze(1), 2.5 * f[1].unsqueeze(0), f);
+  const auto active = random_mask(240, 0.8, 4);
+  const int64_t m = 6;
+  auto c = value_or_die(cosine_candidates(f, active, m, 4 * 240 * 50));
+  auto fd = f.to(torch::kDouble);
+  fd = fd / fd.norm(2, 1, true);
+  const auto sim = fd.mm(fd.t());  // [N, N]
+  for (int64_t i = 0; i < 240; ++i) {
+    if (!active[i].item<bool>()) continue;
+    std::vector<std::tuple<double, int64_t, int64_t>> order;  // (-cos rounded, |j - i|, j)
+    for (int64_t j = 0; j < 240; ++j)
+      if (j != i && active[j].item<bool>())
+        order.emplace_back(-std::round(sim[i][j].item<double>() * 1e6) / 1e6, std::abs(j - i), j);
+    std::sort(order.begin(), order.end());
+    std::vector<int64_t> expect{i};
+    for (int64_t t = 0; t < m - 1; ++t) expect.push_back(std::get<2>(order[size_t(t)]));
+    EXPECT_EQ(to_vec(c.index[i]), expect) << i;
+  }
 }
 
 TEST(LinksCosine, FewerActiveAnchorsThanMArePadded) {

@@ -20,6 +20,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <unordered_map>
 #include <utility>
 
 namespace crpgs {
@@ -301,6 +302,36 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
     for (int64_t c = 0; c < d; ++c) s += a[c] * b[c];
     return s * inv[size_t(v)] * inv[size_t(w)];
   };
+  // Rows with identical integers score identically against every row: each query scores one
+  // member of such a group exactly and reuses it for the rest, so a block of B identical anchors
+  // costs B² comparisons, not B² dot products.
+  // A hash collision between different rows only leaves the later row in a group of its own.
+  std::vector<int64_t> group(static_cast<size_t>(nv));  // first row with the same integers
+  {
+    std::unordered_map<uint64_t, int64_t> first;
+    first.reserve(size_t(nv));
+    for (int64_t v = 0; v < nv; ++v) {
+      uint64_t h = 1469598103934665603ull;  // FNV-1a over the integer values
+      for (int64_t c = 0; c < d; ++c) {
+        h ^= uint64_t(int64_t(q[size_t(v * d + c)]));
+        h *= 1099511628211ull;
+      }
+      const auto [it, fresh] = first.emplace(h, v);
+      const int64_t u = it->second;
+      group[size_t(v)] =
+          !fresh && std::equal(q.begin() + u * d, q.begin() + (u + 1) * d, q.begin() + v * d) ? u
+                                                                                              : v;
+    }
+  }
+  struct Memo {  // per thread: the exact score of each group for the query `row`
+    std::vector<double> score;
+    std::vector<int64_t> row;
+  };
+  std::vector<Memo> memos(size_t(at::get_num_threads()));
+  for (Memo& mm : memos) {
+    mm.score.resize(size_t(nv));
+    mm.row.assign(size_t(nv), -1);
+  }
   const float eps = float(1e-4 + 1e-6 * double(d));
   const auto screen_t = screen.t().contiguous();  // [D, Nv]
   const int64_t rows =
@@ -314,6 +345,8 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
     const float* B = block.data_ptr<float>();
     at::parallel_for(r0, r1, 1, [&](int64_t begin, int64_t end) {
       TopList best(m - 1, /*larger=*/true);
+      Memo& memo = memos[size_t(at::get_thread_num())];
+
       for (int64_t v = begin; v < end; ++v) {
         const float* row = B + (v - r0) * nv;
         best.count = 0;
@@ -327,7 +360,12 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
           if (!any) continue;
           for (int64_t w = w0; w < w1; ++w) {
             if (w == v || !(row[w] > thr)) continue;
-            best.offer(exact(v, w), ids[size_t(w)]);
+            const size_t gw = size_t(group[size_t(w)]);
+            if (memo.row[gw] != v) {
+              memo.score[gw] = exact(v, w);
+              memo.row[gw] = v;
+            }
+            best.offer(memo.score[gw], ids[size_t(w)]);
             if (best.full()) thr = float(best.worst()) - eps;
           }
         }
