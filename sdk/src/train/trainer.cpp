@@ -309,7 +309,10 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     torch::serialize::InputArchive ar;
     ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
     std::map<std::string, torch::Tensor> state;
+    const auto& optional = AnchorModel::optional_state_keys();
     for (const auto& kv : model_->state_dict()) {
+      // The model may hold links the state predates (a roll-back to before a link build).
+      if (std::find(optional.begin(), optional.end(), kv.first) != optional.end()) continue;
       torch::Tensor t;
       if (!ar.try_read(archive_key("model." + kv.first), t))
         return Status(StatusCode::kCorruptBitstream,
@@ -318,7 +321,7 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       state[kv.first] = t;
     }
     // A fresh model has no links yet; a checkpoint written after a link build has them.
-    for (const auto& key : AnchorModel::optional_state_keys()) {
+    for (const auto& key : optional) {
       torch::Tensor t;
       if (ar.try_read(archive_key("model." + key), t)) state[key] = t;
     }
