@@ -57,11 +57,10 @@ void BM_CohsCandidates(benchmark::State& state) {
     cosine_cache()[state.range(0)] =
         ok(crpgs::cosine_candidates(in.features, in.active, 10, kBudget));
   // Block (<= budget) + float64 [N, D] input copy + integer and float32 copies of the active rows
-  // + duplicate groups (~48 B per active row with the hash map) + 16 B per row and thread of memo.
+  // + the duplicate search's hash map (~48 B per active row; no duplicates here, so no memo).
   const double block = std::min<double>(kBudget, 4.0 * na * na);
-  state.counters["peak_MiB"] = (block + 8.0 * 30 * double(state.range(0)) + 12.0 * 30 * na +
-                                (48.0 + 16.0 * double(state.range(1))) * na) /
-                               (1 << 20);
+  state.counters["peak_MiB"] =
+      (block + 8.0 * 30 * double(state.range(0)) + (12.0 * 30 + 48) * na) / (1 << 20);
 }
 
 /// 30% of the anchors share one feature vector (e.g. anchors grown from one parent and never

@@ -304,9 +304,10 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
   };
   // Rows with identical integers score identically against every row: each query scores one
   // member of such a group exactly and reuses it for the rest, so a block of B identical anchors
-  // costs B² comparisons, not B² dot products.
-  // A hash collision between different rows only leaves the later row in a group of its own.
-  std::vector<int64_t> group(static_cast<size_t>(nv));  // first row with the same integers
+  // costs B² comparisons, not B² dot products. A hash collision between different rows only
+  // leaves the later row in a group of its own.
+  std::vector<int64_t> group(static_cast<size_t>(nv), -1);  // duplicate group id, or -1
+  int64_t groups = 0;
   {
     std::unordered_map<uint64_t, int64_t> first;
     first.reserve(size_t(nv));
@@ -318,19 +319,20 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
       }
       const auto [it, fresh] = first.emplace(h, v);
       const int64_t u = it->second;
-      group[size_t(v)] =
-          !fresh && std::equal(q.begin() + u * d, q.begin() + (u + 1) * d, q.begin() + v * d) ? u
-                                                                                              : v;
+      const bool same =
+          !fresh && std::equal(q.begin() + u * d, q.begin() + (u + 1) * d, q.begin() + v * d);
+      if (same && group[size_t(u)] < 0) group[size_t(u)] = groups++;
+      if (same) group[size_t(v)] = group[size_t(u)];
     }
   }
-  struct Memo {  // per thread: the exact score of each group for the query `row`
+  struct Memo {  // per thread: the exact score of each duplicate group for the query `row`
     std::vector<double> score;
     std::vector<int64_t> row;
   };
-  std::vector<Memo> memos(size_t(at::get_num_threads()));
+  std::vector<Memo> memos(groups > 0 ? size_t(at::get_num_threads()) : 0);
   for (Memo& mm : memos) {
-    mm.score.resize(size_t(nv));
-    mm.row.assign(size_t(nv), -1);
+    mm.score.resize(size_t(groups));
+    mm.row.assign(size_t(groups), -1);
   }
   const float eps = float(1e-4 + 1e-6 * double(d));
   const auto screen_t = screen.t().contiguous();  // [D, Nv]
@@ -345,8 +347,7 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
     const float* B = block.data_ptr<float>();
     at::parallel_for(r0, r1, 1, [&](int64_t begin, int64_t end) {
       TopList best(m - 1, /*larger=*/true);
-      Memo& memo = memos[size_t(at::get_thread_num())];
-
+      Memo* memo = memos.empty() ? nullptr : &memos[size_t(at::get_thread_num())];
       for (int64_t v = begin; v < end; ++v) {
         const float* row = B + (v - r0) * nv;
         best.count = 0;
@@ -360,12 +361,18 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
           if (!any) continue;
           for (int64_t w = w0; w < w1; ++w) {
             if (w == v || !(row[w] > thr)) continue;
-            const size_t gw = size_t(group[size_t(w)]);
-            if (memo.row[gw] != v) {
-              memo.score[gw] = exact(v, w);
-              memo.row[gw] = v;
+            const int64_t gw = group[size_t(w)];
+            double score;
+            if (gw < 0) {
+              score = exact(v, w);
+            } else {
+              if (memo->row[size_t(gw)] != v) {
+                memo->score[size_t(gw)] = exact(v, w);
+                memo->row[size_t(gw)] = v;
+              }
+              score = memo->score[size_t(gw)];
             }
-            best.offer(memo.score[gw], ids[size_t(w)]);
+            best.offer(score, ids[size_t(w)]);
             if (best.full()) thr = float(best.worst()) - eps;
           }
         }
