@@ -80,20 +80,57 @@ StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
 namespace {
 namespace fs = std::filesystem;
 
+/// YAML equality by value: scalars equal as text, or as numbers, or as booleans
+/// (`0.0` == `0`, `True` == `true`).
+bool same_yaml(const YAML::Node& a, const YAML::Node& b) {
+  if (a.Type() != b.Type()) return false;
+  if (a.IsScalar()) {
+    if (a.Scalar() == b.Scalar()) return true;
+    double x, y;
+    if (YAML::convert<double>::decode(a, x) && YAML::convert<double>::decode(b, y)) return x == y;
+    bool p, q;
+    return YAML::convert<bool>::decode(a, p) && YAML::convert<bool>::decode(b, q) && p == q;
+  }
+  if (a.IsSequence()) {
+    if (a.size() != b.size()) return false;
+    for (size_t i = 0; i < a.size(); ++i)
+      if (!same_yaml(a[i], b[i])) return false;
+    return true;
+  }
+  if (a.IsMap()) {
+    if (a.size() != b.size()) return false;
+    for (const auto& kv : a) {
+      const YAML::Node other = b[kv.first.Scalar()];
+      if (!other || !same_yaml(kv.second, other)) return false;
+    }
+  }
+  return true;
+}
+
+bool is_known_section(const std::string& key) {
+  for (const auto& c : component_sections())
+    if (key == c.key) return true;
+  for (const auto& c : core_sections())
+    if (key == c.key) return true;
+  return false;
+}
+
 /// A bitstream or decode directory holds a model built from its own config: a --set that
 /// changes anything but where the cameras come from and how to rasterize would be ignored by the
-/// model while the dataset follows it (e.g. scene.background), so it is refused.
+/// model while the dataset follows it (e.g. scene.background), so it is refused. Unknown
+/// sections are left to resolve(), which names them.
 Status check_model_is_untouched(const Config& before, const Config& after,
                                 const std::string& assignment, const std::string& kind) {
   const std::string key = assignment.substr(0, assignment.find('='));
   const std::string top = key.substr(0, key.find('.'));
-  if (top == "dataset" || top == "rasterizer" || key == "train.threads") return OkStatus();
-  auto text = [&](const Config& c) {
+  if (top == "dataset" || top == "rasterizer" || key == "train.threads" || !is_known_section(top))
+    return OkStatus();
+  auto section = [&](const Config& c) {
     YAML::Node n = YAML::Clone(c.section(top));
     if (top == "train" && n.IsMap()) n.remove("threads");
-    return YAML::Dump(n);
+    return n;
   };
-  if (text(before) == text(after)) return OkStatus();
+  if (same_yaml(section(before), section(after))) return OkStatus();
   return Status(StatusCode::kInvalidArgument,
                 "--set " + key + ": a " + kind +
                     " fixes the model it holds, so only dataset.*, rasterizer.* and train.threads "
@@ -195,6 +232,11 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
                                       : s.kind == "bitstream" ? std::string("bitstream")
                                                               : std::string("decode directory")));
   CRPGS_RETURN_IF_ERROR(check_dataset(cfg));
+  {
+    const YAML::Node trained = model_config.section("dataset"), now = cfg.section("dataset");
+    for (const char* k : {"test_every", "max_images"})
+      if (trained && now && !same_yaml(trained[k], now[k])) s.train_views_as_trained = false;
+  }
   CRPGS_ASSIGN_OR_RETURN(s.setup,
                          setup_training_and_warn(cfg, r, SetupOptions{run ? source : "", run}));
   if (run && s.setup->iteration() == 0)

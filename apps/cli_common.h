@@ -84,6 +84,9 @@ struct ModelSource {
   QuantizedAttributes q;
   bool quantized = false;
   uint64_t file_bytes = 0;  ///< a bitstream's size
+  /// False when --set changed the train/test split (dataset.test_every or max_images): train
+  /// view i is then not the view the model's appearance embedding i was trained on.
+  bool train_views_as_trained = true;
   double load_seconds = 0;  ///< reading and decoding (not the run's checkpoint)
   AnchorModel& model() { return decoded ? *decoded : setup->model(); }
 };

@@ -149,6 +149,11 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
               static_cast<long long>(src->kind == "run" ? model.num_anchors()
                                                         : src->decoded->num_anchors()),
               threads);
+  if (!src->train_views_as_trained && model.options().effects.appearance_dim > 0 &&
+      std::any_of(splits.begin(), splits.end(), [](const auto& sp) { return sp.first == "train"; }))
+    std::fprintf(stderr,
+                 "note: --set changed the train/test split, so train views are rendered with the "
+                 "mean appearance embedding, not their own\n");
   RenderSettings settings;
   settings.background = model.options().effects.background;
   std::vector<std::vector<std::string>> rows = {{"VIEW", "CAMERA", "RENDER (ms)", "PSNR (dB)"}};
@@ -160,7 +165,7 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
       const View& v = (*views)[i];
       const auto t0 = Clock::now();
       // A train view has its own appearance embedding (as in training); others get the mean.
-      const int camera_index = split == "train" ? int(i) : -1;
+      const int camera_index = split == "train" && src->train_views_as_trained ? int(i) : -1;
       NeuralGaussians ng =
           model.generate(v.camera, camera_index, src->setup->rasterizer(), settings, false);
       auto img = src->setup->rasterizer().render(ng.batch, v.camera, settings).image;

@@ -181,6 +181,18 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
     auto cli = load_image((fs::path(train_out) / "train_00001.png").string());
     ASSERT_TRUE(cli.ok()) << cli.status().to_string();
     EXPECT_TRUE(cli->pixels == own.pixels);
+    // With another split, train view 1 (view 2 of 12 under test_every 8 and 3 alike) is not
+    // the view its embedding was trained on by index: the mean is used, with a note.
+    const std::string resplit_out = (dir / "render_resplit").string();
+    ASSERT_EQ(run_cli("render '" + file + "' -o '" + resplit_out +
+                          "' --views train --threads 1 --set dataset.test_every=3",
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("mean appearance embedding"), std::string::npos) << log;
+    auto resplit = load_image((fs::path(resplit_out) / "train_00001.png").string());
+    ASSERT_TRUE(resplit.ok()) << resplit.status().to_string();
+    EXPECT_TRUE(resplit->pixels == mean.pixels);
   }
 
   // 3c. `crpgs export` of the run bakes what bake_gaussians bakes with the options it was given.
@@ -251,7 +263,10 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
 
   // 5. A bitstream or decode directory fixes its model: a --set that the model would ignore
   // while the dataset followed it is refused; the thread count, the rasterizer and a --set
-  // that changes nothing are accepted.
+  // that changes nothing (compared by value) are accepted; a misspelt section is named.
+  EXPECT_NE(run_cli("eval '" + file + "' --set sceen.background=[1,1,1]", dir / "log.txt", &log),
+            0);
+  EXPECT_NE(log.find("did you mean 'scene'"), std::string::npos) << log;
   for (const std::string& src : {file, (dir / "dec1").string()}) {
     EXPECT_NE(run_cli("eval '" + src + "' --set scene.background=[1,1,1]", dir / "log.txt", &log),
               0);
@@ -259,7 +274,7 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
     EXPECT_NE(log.find("fixes the model it holds"), std::string::npos) << log;
   }
   ASSERT_EQ(run_cli("eval '" + file + "' --set train.threads=1 --set rasterizer.threads=1 " +
-                        "--set scene.background=[0,0,0]",
+                        "--set scene.background=[0.0,0,0]",
                     dir / "log.txt", &log),
             0)
       << log;
