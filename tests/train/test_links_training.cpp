@@ -377,6 +377,12 @@ TEST(LinksTraining, CheckpointKeepsTheLinks) {
   Status st = w->model().load_state_dict(broken);
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("checkpoint links:"), std::string::npos) << st.message();
+  // A model without a link strategy has no leaf model for them: refused, not a crash later.
+  auto none = links_trainer(ds, nullptr);
+  Status refused = none->model().load_state_dict(state);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.message().find("holds anchor links but this model has none"), std::string::npos)
+      << refused.message();
 }
 
 }  // namespace

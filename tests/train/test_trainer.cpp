@@ -264,6 +264,57 @@ TEST(Trainer, RefusedCheckpointLeavesTheTrainerUnchanged) {
   }
 }
 
+TEST(Trainer, AStateTrainedPartlyUnderAnotherConfigIsNotPublishedAsPrefix) {
+  Dataset ds = scene(32, 24, 6);
+  struct Notes : ProgressCallback {
+    bool refused = false;
+    void on_iteration(const TrainingProgress&) override {}
+    void on_note(int, const std::string& m) override {
+      refused = refused || m.find("shared prefix not written") == 0;
+    }
+  };
+  TrainOptions to;
+  to.schedule = tiny_schedule(12);
+  to.schedule.rate_start = 8;
+  const std::string dir = tmp_dir("mixed_prefix");
+  const std::string prefix = dir + "/prefix.pt";
+  auto with = [&](const std::string& hash, const std::string& out, bool publish) {
+    TrainOptions o = to;
+    o.config_hash = hash;
+    o.output_dir = out;
+    o.prefix_path = publish ? prefix : "";
+    return trainer(ds, o);
+  };
+  // Iterations 1-4 under config aaaa.
+  auto a = with("aaaa", dir + "/a", false);
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(a->step().ok());
+  ASSERT_TRUE(a->save_checkpoint(a->checkpoint_path()).ok());
+  // Resumed under bbbb: iterations 5-6 then a checkpoint, then on past rate_start.
+  auto b = with("bbbb", dir + "/b", true);
+  ASSERT_TRUE(b->load_checkpoint(a->checkpoint_path()).ok());
+  for (int i = 0; i < 2; ++i) ASSERT_TRUE(b->step().ok());
+  ASSERT_TRUE(b->save_checkpoint(dir + "/b6.pt").ok());
+  Notes nb;
+  ASSERT_TRUE(b->train(&nb).ok());
+  EXPECT_FALSE(fs::exists(prefix));
+  EXPECT_TRUE(nb.refused);
+  // b's iteration-6 checkpoint resumed under bbbb itself: still mixed.
+  auto b2 = with("bbbb", dir + "/b", true);
+  ASSERT_TRUE(b2->load_checkpoint(dir + "/b6.pt").ok());
+  ASSERT_EQ(b2->iteration(), 6);
+  Notes nb2;
+  ASSERT_TRUE(b2->train(&nb2).ok());
+  EXPECT_FALSE(fs::exists(prefix));
+  EXPECT_TRUE(nb2.refused);
+  // a's checkpoint resumed under aaaa, its own config: published.
+  auto a2 = with("aaaa", dir + "/a2", true);
+  ASSERT_TRUE(a2->load_checkpoint(a->checkpoint_path()).ok());
+  Notes na;
+  ASSERT_TRUE(a2->train(&na).ok());
+  EXPECT_TRUE(fs::exists(prefix));
+  EXPECT_FALSE(na.refused);
+}
+
 struct Recorder : ProgressCallback {
   std::vector<TrainingProgress> seen;
   std::vector<std::string> checkpoints;

@@ -202,7 +202,8 @@ class Trainer {
   Status restore_state(const std::vector<uint8_t>& bytes, const std::string& origin, bool rollback);
   /// Remembers the current state as the last good one (and writes it to checkpoint_path()).
   Status checkpoint(ProgressCallback* progress);
-  /// Writes options_.prefix_path once (when absent and every parameter is finite).
+  /// Writes options_.prefix_path once (when absent, every parameter is finite and the state was
+  /// trained under this config alone).
   void publish_prefix(ProgressCallback* progress) const;
   TrainOptions options_;
   Dataset dataset_;
@@ -225,6 +226,10 @@ class Trainer {
   std::string prefix_status_;
   std::string state_build_id_;
   std::string state_config_hash_;
+  /// True once the state holds iterations trained under another config (a resume after the
+  /// config changed, or a start from another run's prefix); checkpointed. Such a state is never
+  /// published as a shared prefix: its consumers would not continue a training from the start.
+  bool mixed_config_ = false;
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip

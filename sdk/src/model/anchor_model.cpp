@@ -1193,6 +1193,10 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
   }
   torch::Tensor links;
   if (s.count("links")) {
+    if (!m.link_strategy)  // its leaves would need the leaf model this model does not have
+      return bad(
+          "the checkpoint holds anchor links but this model has none (no links section in the "
+          "config): resume it with the config it was trained with");
     CRPGS_ASSIGN_OR_RETURN(links, get("links", {n}, torch::kLong));
     if (Status st = check_links(links, {}); !st.ok()) return bad("checkpoint " + st.message());
   }

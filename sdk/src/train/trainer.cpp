@@ -269,6 +269,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
     ar.write("build_id", text_tensor(code_build_id()));
     ar.write("config_hash", text_tensor(options_.config_hash));
+    ar.write("mixed_config", torch::tensor(int64_t(mixed_config_), torch::kLong));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
       trace.insert(trace.end(), {p.seconds, double(p.iteration), p.psnr});
@@ -334,11 +335,16 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       return Status(StatusCode::kCorruptBitstream, origin + ": bad iteration in the checkpoint");
     gen_.clone().set_state(rng);  // throws on a malformed state
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace, build, config, salt;
+    torch::Tensor elapsed, trace, build, config, salt, mixed;
     const uint64_t replay_salt =
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
     std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
+    // A roll-back restores our own snapshot; any other state trained under another config (or
+    // under one that had been mixed) makes this run's state mixed from here on.
+    const bool mixed_config =
+        (ar.try_read("mixed_config", mixed) && mixed.item<int64_t>() != 0) ||
+        (!rollback && !config_hash.empty() && config_hash != options_.config_hash);
     const double elapsed_seconds =
         ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
     std::vector<PsnrPoint> psnr_trace;
@@ -355,6 +361,7 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     replay_salt_ = replay_salt;
     state_build_id_ = std::move(build_id);
     state_config_hash_ = std::move(config_hash);
+    mixed_config_ = mixed_config;
     if (!rollback) elapsed_ = elapsed_seconds;
     psnr_trace_ = std::move(psnr_trace);
   } catch (const std::exception& e) {
@@ -386,6 +393,13 @@ void Trainer::publish_prefix(ProgressCallback* progress) const {
   const std::string& path = options_.prefix_path;
   std::error_code ec;
   if (path.empty() || std::filesystem::exists(path, ec)) return;
+  if (mixed_config_) {
+    if (progress)
+      progress->on_note(iteration_,
+                        "shared prefix not written: part of this state was trained "
+                        "under another config (resumed after a config change)");
+    return;
+  }
   Status st = nonfinite_parameter_group().empty()
                   ? OkStatus()
                   : Status(StatusCode::kNonFinite, "a parameter is non-finite");
