@@ -433,6 +433,27 @@ TEST(Trainer, NonFiniteGradientIsReportedAndItsUpdateDiscarded) {
 }
 
 // The first replay after a roll-back is exact; one that fails again draws differently.
+TEST(Trainer, ACheckpointIterationWhoseUpdateIsDiscardedCheckpointsAtTheNextStep) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(16);
+  to.checkpoint_interval = 5;
+  to.checkpoint_minutes = 0;
+  to.output_dir = tmp_dir("discarded_checkpoint_iteration");
+  auto t = trainer(ds, to);
+  struct Checkpoints : WarningRecorder {
+    std::vector<int> at;
+    void on_checkpoint(int it, const std::string&) override { at.push_back(it); }
+  } rec;
+  int shots = 0;
+  NanGradient nan(parameter(*t, "mlp_color.w2"), &shots);
+  rec.at_iteration = [&](int it) { shots = it == 9 ? 1 : shots; };  // iteration 10's update
+  ASSERT_TRUE(t->train(&rec).ok());
+  ASSERT_EQ(rec.warnings.size(), 1u);
+  EXPECT_EQ(rec.warnings[0].first, 10);
+  EXPECT_EQ(rec.at, (std::vector<int>{5, 11, 15, 16}));
+}
+
 TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;

@@ -580,8 +580,11 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
                             std::max<int64_t>(0, anchors_before - p.anchors), p.anchors);
       progress->on_iteration(p);
     }
-    const bool due_by_count = options_.checkpoint_interval > 0 &&
-                              it % options_.checkpoint_interval == 0 && it < sc.iterations;
+    // A multiple of the interval passed since the last good state (that multiple's own update
+    // may have been discarded, which skips this block).
+    const bool due_by_count =
+        options_.checkpoint_interval > 0 && it < sc.iterations &&
+        it / options_.checkpoint_interval > last_good_iteration_ / options_.checkpoint_interval;
     const bool due_by_time = options_.checkpoint_minutes > 0 && !checkpoint_path().empty() &&
                              it < sc.iterations &&
                              seconds_since(last_checkpoint) >= 60 * options_.checkpoint_minutes;
