@@ -82,6 +82,8 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
   if (!trainer.ok()) return report_error(trainer.status());
   Trainer& t = *trainer.value();
+  for (const std::string& w : t.setting_warnings())
+    std::fprintf(stderr, "warning: %s\n", w.c_str());
   // Training anew: an earlier run's files go now, or a run killed before its first checkpoint
   // would leave the old one for a later --resume (or a sweep) to take for its own.
   if (!resume)

@@ -391,6 +391,40 @@ TEST(LinksTraining, CheckpointKeepsTheLinks) {
 namespace crpgs {
 namespace {
 
+// A shared feature (SFA) with bounds recomputed at rate_start is allowed but flagged before
+// training reaches it; frozen bounds or no shared part are not.
+TEST(ShippedConfigs, SharedFeatureWithRecomputedBoundsIsFlagged) {
+  const auto& reg = test::rate_registry();
+  if (!reg.find(CRPGS_KIND_FEATURES, "sfa"))
+    GTEST_SKIP() << "the sfa plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  SKIP_WITHOUT_PLUGINS();
+  auto warnings = [&](const std::string& extra) {
+    auto cfg = Config::from_string(
+        "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+        "synthetic_views: 6, synthetic_points: 300}\n"
+        "context: {type: hash_grid, n_levels: 2, resolutions: [8, 16], log2_hashmap_size: 8, "
+        "n_levels_2d: 1, resolutions_2d: [16], log2_hashmap_size_2d: 8, hidden_dim: 16}\n"
+        "entropy: {type: gaussian}\n"
+        "train: {schedule: fast, fast_factor: 0.01, iterations: 20, threads: 1}\n" +
+            extra,
+        "sfa_bounds.yaml");
+    if (!cfg.ok()) throw StatusError(cfg.status());
+    auto r = cfg->resolve(reg);
+    if (!r.ok()) throw StatusError(r.status());
+    auto t = setup_training(r.value(), reg, SetupOptions{});
+    if (!t.ok()) throw StatusError(t.status());
+    return t.value()->setting_warnings();
+  };
+  const auto flagged = warnings("features: {type: sfa, ratio: 0.4}\n");
+  ASSERT_EQ(flagged.size(), 1u);
+  EXPECT_NE(flagged[0].find("recompute_bounds"), std::string::npos) << flagged[0];
+  EXPECT_NE(flagged[0].find("sfa"), std::string::npos) << flagged[0];
+  EXPECT_TRUE(
+      warnings("features: {type: sfa, ratio: 0.4}\nrate: {recompute_bounds: false}\n").empty());
+  EXPECT_TRUE(warnings("features: {type: sfa, ratio: 0}\n").empty());
+  EXPECT_TRUE(warnings("").empty());
+}
+
 // Every shipped config validates against the schemas of the built components, and the CRP-GS
 // configs say what method.md §6-§7 prescribes.
 TEST(ShippedConfigs, ResolveAndFollowTheMethod) {

@@ -175,6 +175,10 @@ class Trainer {
   void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
+  /// Settings that work but are likely not what was meant for the training still to come, one
+  /// line each (e.g. a shared feature whose grid lookup moves when rate_start recomputes the
+  /// bounds, method.md §7.4).
+  std::vector<std::string> setting_warnings() const;
   /// The first parameter group holding a NaN/Inf, or "" when every parameter is finite.
   std::string nonfinite_parameter_group() const;
 

@@ -661,8 +661,14 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       shares.push_back(row);
     }
     const std::string share_title = "### Bitstream breakdown (mean share over runs, %)\n\n";
-    md += share_title + md_table(shares);
-    html_body += "<h3>Bitstream breakdown (mean share over runs, %)</h3>\n" + html_table(shares);
+    // Component sections are opaque to the codec: a context's or feature model's own MLP is
+    // stored, and counted, with its grid.
+    const std::string share_note =
+        "hash_grids: the context and feature-model sections (binary hash tables with their own "
+        "MLPs: HAC's mlp_grid, SFA's output layer); mlps: the neural Gaussians' MLPs.";
+    md += share_title + md_table(shares) + share_note + "\n\n";
+    html_body += "<h3>Bitstream breakdown (mean share over runs, %)</h3>\n" + html_table(shares) +
+                 "<p>" + html_escape(share_note) + "</p>\n";
 
     if (plots) {
       std::vector<std::string> names;

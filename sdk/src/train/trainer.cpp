@@ -412,6 +412,19 @@ void Trainer::publish_prefix(ProgressCallback* progress) const {
     progress->on_warning(iteration_, "shared prefix not written: " + st.message());
 }
 
+std::vector<std::string> Trainer::setting_warnings() const {
+  std::vector<std::string> out;
+  const std::shared_ptr<FeatureModel> f = model_->feature_model();
+  if (model_->has_rate() && f && f->coded_dim() < f->feature_dim() &&
+      model_->rate_options().recompute_bounds && iteration_ < options_.schedule.rate_start)
+    out.push_back("rate.recompute_bounds is true with a shared feature (features: " +
+                  f->type_name() + "): every anchor's shared-feature lookup moves at rate_start (" +
+                  std::to_string(options_.schedule.rate_start) +
+                  "); method.md §7.4 keeps the bounds, as configs/crpgs.yaml does "
+                  "(rate: {recompute_bounds: false})");
+  return out;
+}
+
 std::string Trainer::nonfinite_parameter_group() const {
   torch::NoGradGuard no_grad;
   for (const auto& [name, param] : model_->named_parameters())

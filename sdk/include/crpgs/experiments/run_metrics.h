@@ -26,8 +26,8 @@ enum class BitstreamCategory {
   kOffsets,    ///< neural Gaussian offsets
   kMasks,      ///< pruning masks
   kLinks,      ///< cross-representation links
-  kHashGrids,  ///< hash-grid context
-  kMlps,       ///< MLP weights
+  kHashGrids,  ///< context and feature-model sections: hash tables with their own MLPs
+  kMlps,       ///< the neural Gaussians' MLPs
   kOther,      ///< headers, anything else
 };
 inline constexpr int kNumBitstreamCategories = 9;
