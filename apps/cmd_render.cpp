@@ -114,8 +114,9 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   std::printf(
       "%s: %zu bytes, decoded in %.3f s (%d threads, BLAS kernels %s): %lld anchors, %lld "
       "offsets each (%lld active), feature width %lld, voxel %.6g\n",
-      path.c_str(), bytes->size(), decode_s, at::get_num_threads(), blas_kernels().c_str(),
-      static_cast<long long>(m.voxels.size(0)), static_cast<long long>(m.offset_masks.size(1)),
+      path.c_str(), bytes->size(), decode_s, at::get_num_threads(),
+      blas_kernels_explained().c_str(), static_cast<long long>(m.voxels.size(0)),
+      static_cast<long long>(m.offset_masks.size(1)),
       static_cast<long long>(m.offset_masks.sum().item<int64_t>()),
       static_cast<long long>(m.feature_sym.size(1)), m.voxel_size);
   std::printf("wrote %s (the bitstream's resolved config)\n", config_path.c_str());

@@ -116,10 +116,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
              *blas_timeout = std::getenv("OPENBLAS_THREAD_TIMEOUT");
   std::printf("idle compute threads: OMP_WAIT_POLICY=%s, OPENBLAS_THREAD_TIMEOUT=%s\n",
               omp_wait ? omp_wait : "(unset)", blas_timeout ? blas_timeout : "(unset)");
-  // OPENBLAS_CORETYPE can force slower kernels than OpenBLAS would pick for the CPU.
-  const char* blas_core = std::getenv("OPENBLAS_CORETYPE");
-  std::printf("BLAS kernels: %s%s\n", blas_kernels().c_str(),
-              blas_core ? " (forced by OPENBLAS_CORETYPE)" : "");
+  std::printf("BLAS kernels: %s\n", blas_kernels_explained().c_str());
 
   TrainControl control;
   g_control = &control;

@@ -12,6 +12,7 @@
 #include "cli_common.h"
 #include "core/text_list.h"
 #include "crpgs/dir_lock.h"
+#include "crpgs/runtime.h"
 #include "crpgs/version.h"
 
 namespace {
@@ -31,6 +32,16 @@ void restart_with_idle_threads_that_sleep(int argc, char** argv) {
   for (const auto& [name, value] :
        {std::pair{"OMP_WAIT_POLICY", "PASSIVE"}, std::pair{"OPENBLAS_THREAD_TIMEOUT", "4"}})
     if (!std::getenv(name)) changed = setenv(name, value, 0) == 0 || changed;
+  // OpenBLAS also picks its kernels when it loads, and on a CPU newer than itself it falls back
+  // to SSE3 ones. The restarted process says what OpenBLAS had picked (cmd_train.cpp).
+  if (!std::getenv("OPENBLAS_CORETYPE")) {
+    const std::string picked = crpgs::openblas_core();
+    const std::string wider = crpgs::wider_openblas_core(picked, crpgs::cpu_vector_level());
+    if (!wider.empty() && setenv("OPENBLAS_CORETYPE", wider.c_str(), 1) == 0) {
+      setenv(crpgs::kOpenBlasPickedVariable, picked.c_str(), 1);
+      changed = true;
+    }
+  }
   if (changed) execv("/proc/self/exe", argv);  // if it fails, run on as we are
 }
 

@@ -24,6 +24,35 @@ TEST(Runtime, BlasIsOpenBlasAndNamesItsKernels) {
   }
 }
 
+// OpenBLAS falls back to SSE3 "Prescott" kernels on CPUs newer than itself; `crpgs` restarts
+// with the widest kernels the CPU runs, and only when OpenBLAS picked narrower ones.
+TEST(Runtime, AWiderOpenBlasCoreOnlyWhenOpenBlasPickedNarrowerKernelsThanTheCpuRuns) {
+  EXPECT_EQ(wider_openblas_core("Prescott", 3), "SkylakeX");
+  EXPECT_EQ(wider_openblas_core("Prescott", 2), "Haswell");
+  EXPECT_EQ(wider_openblas_core("Nehalem", 1), "Sandybridge");
+  EXPECT_EQ(wider_openblas_core("Sandybridge", 2), "Haswell");
+  EXPECT_EQ(wider_openblas_core("Zen", 3), "SkylakeX");  // AVX-512 Zen on an older OpenBLAS
+  EXPECT_EQ(wider_openblas_core("HASWELL", 3), "SkylakeX");
+  EXPECT_EQ(wider_openblas_core("Prescott", 0), "");
+  EXPECT_EQ(wider_openblas_core("Haswell", 2), "");
+  EXPECT_EQ(wider_openblas_core("Cooperlake", 3), "");
+  EXPECT_EQ(wider_openblas_core("SapphireRapids", 3), "");
+  EXPECT_EQ(wider_openblas_core("SkylakeX", 2), "");    // never narrower than OpenBLAS's pick
+  EXPECT_EQ(wider_openblas_core("NeoverseN1", 3), "");  // names not known here are left alone
+  EXPECT_EQ(wider_openblas_core("", 3), "");
+}
+
+// OpenBLAS does not pick kernels the CPU cannot run.
+TEST(Runtime, TheCpusVectorLevelCoversTheKernelsOpenBlasPicked) {
+  const int cpu = cpu_vector_level();
+  EXPECT_GE(cpu, 0);
+  EXPECT_LE(cpu, 3);
+  if (std::getenv("OPENBLAS_CORETYPE")) GTEST_SKIP() << "OPENBLAS_CORETYPE chose the kernels";
+  const int running = openblas_core_vector_level(openblas_core());
+  if (running < 0) GTEST_SKIP() << "kernels not known here: " << blas_kernels();
+  EXPECT_LE(running, cpu) << blas_kernels();
+}
+
 // Checkpoints record which build wrote them: the id comes from the crpgs objects loaded, so
 // loading one more (a plugin) changes it, and it is the same every time it is asked.
 TEST(Runtime, CodeBuildIdFollowsTheLoadedCrpgsObjects) {

@@ -15,6 +15,7 @@
 #include "cli_test_util.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/sweep.h"
+#include "crpgs/runtime.h"
 
 namespace crpgs {
 namespace {
@@ -65,6 +66,18 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
     EXPECT_NE(log.find("idle compute threads: OMP_WAIT_POLICY=PASSIVE, OPENBLAS_THREAD_TIMEOUT=4"),
               std::string::npos)
         << log;
+  }
+  // ... and with OpenBLAS kernels as wide as the CPU runs: OpenBLAS falls back to SSE3 ones on
+  // CPUs newer than itself (Debian 12's on an Intel Xeon of model 207).
+  if (fs::exists("/proc/self/exe") && !std::getenv("OPENBLAS_CORETYPE")) {
+    const std::string tag = "BLAS kernels: OpenBLAS ";
+    const size_t at = log.find(tag);
+    ASSERT_NE(at, std::string::npos) << log;
+    const size_t from = at + tag.size();
+    const std::string core = log.substr(from, log.find_first_of(" \n", from) - from);
+    if (openblas_core_vector_level(core) >= 0) {
+      EXPECT_GE(openblas_core_vector_level(core), cpu_vector_level()) << log;
+    }
   }
 
   // Kill at a random moment of the run (seed printed so a failure can be replayed).

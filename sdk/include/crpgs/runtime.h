@@ -22,6 +22,31 @@ void set_compute_threads(int requested);
 /// BLAS is not OpenBLAS.
 std::string blas_kernels();
 
+/// The core type OpenBLAS runs ("Haswell", "SkylakeX", ...), "" when the BLAS is not OpenBLAS.
+std::string openblas_core();
+
+/// How wide the vectors are that an OpenBLAS core type's kernels use: 0 SSE, 1 AVX, 2 AVX2 + FMA,
+/// 3 AVX-512; -1 for a name not known here.
+int openblas_core_vector_level(const std::string& core);
+
+/// The same scale for this CPU (AVX-512 counts with F, CD, BW, DQ and VL, as OpenBLAS's SkylakeX
+/// kernels need them), as the CPU and the OS support it.
+int cpu_vector_level();
+
+/// The OPENBLAS_CORETYPE to restart with when OpenBLAS picked kernels narrower than the CPU runs
+/// ("SkylakeX", "Haswell" or "Sandybridge"), else "". OpenBLAS falls back to SSE3 "Prescott" on
+/// CPUs newer than itself: Debian 12's 0.3.21 on an Intel Xeon of model 207 (Emerald Rapids) ran
+/// the MLPs' GEMMs 3.3x slower than with SkylakeX (bench/results/train_fern.md).
+std::string wider_openblas_core(const std::string& picked, int cpu_level);
+
+/// Set by `crpgs` with OPENBLAS_CORETYPE when it restarted itself for wider kernels: the core
+/// type OpenBLAS had picked, so that the log can tell this from a user's own OPENBLAS_CORETYPE.
+inline constexpr char kOpenBlasPickedVariable[] = "CRPGS_OPENBLAS_PICKED";
+
+/// "OpenBLAS SkylakeX (...)": blas_kernels() and why they are those kernels when
+/// OPENBLAS_CORETYPE chose them.
+std::string blas_kernels_explained();
+
 /// Identifies the crpgs code in this process: a hash (16 hex digits) of the GNU build ids of
 /// every loaded crpgs library and plugin (ELF objects named libcrpgs*), which change whenever
 /// their code does. Checkpoints and shared prefixes record it, so a run can say when it continues

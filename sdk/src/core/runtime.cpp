@@ -8,7 +8,9 @@
 #include <malloc.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <map>
 #include <string>
@@ -73,8 +75,59 @@ SingleThreadedBlas::~SingleThreadedBlas() {
 }
 
 std::string blas_kernels() {
-  const OpenBlas& blas = openblas();
-  return blas.corename ? std::string("OpenBLAS ") + blas.corename() : std::string("unknown");
+  const std::string core = openblas_core();
+  return core.empty() ? std::string("unknown") : "OpenBLAS " + core;
+}
+
+std::string blas_kernels_explained() {
+  const char* forced = std::getenv("OPENBLAS_CORETYPE");
+  if (!forced) return blas_kernels();
+  const char* picked = std::getenv(kOpenBlasPickedVariable);
+  return blas_kernels() + (picked ? std::string(" (OpenBLAS picked ") + picked +
+                                        ", narrower than this CPU runs; crpgs set "
+                                        "OPENBLAS_CORETYPE)"
+                                  : std::string(" (forced by OPENBLAS_CORETYPE)"));
+}
+
+std::string openblas_core() {
+  const char* core = openblas().corename ? openblas().corename() : nullptr;
+  return core ? core : "";
+}
+
+int openblas_core_vector_level(const std::string& core) {
+  // OpenBLAS's x86-64 DYNAMIC_ARCH targets (its corename strings, compared case-blind).
+  static const std::map<std::string, int> kLevels = {
+      {"katmai", 0},     {"coppermine", 0},  {"northwood", 0},   {"prescott", 0},
+      {"banias", 0},     {"atom", 0},        {"core2", 0},       {"penryn", 0},
+      {"dunnington", 0}, {"nehalem", 0},     {"opteron", 0},     {"opteron_sse3", 0},
+      {"barcelona", 0},  {"bobcat", 0},      {"sandybridge", 1}, {"bulldozer", 1},
+      {"piledriver", 1}, {"steamroller", 1}, {"excavator", 1},   {"haswell", 2},
+      {"zen", 2},        {"skylakex", 3},    {"cooperlake", 3},  {"sapphirerapids", 3}};
+  std::string key = core;
+  std::transform(key.begin(), key.end(), key.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  const auto it = kLevels.find(key);
+  return it == kLevels.end() ? -1 : it->second;
+}
+
+int cpu_vector_level() {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_cpu_init();  // libgcc's checks include the OS's saving of the wide registers
+  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512cd") &&
+      __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq") &&
+      __builtin_cpu_supports("avx512vl"))
+    return 3;
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return 2;
+  if (__builtin_cpu_supports("avx")) return 1;
+#endif
+  return 0;
+}
+
+std::string wider_openblas_core(const std::string& picked, int cpu_level) {
+  const int level = openblas_core_vector_level(picked);
+  if (level < 0 || level >= cpu_level) return "";
+  static const char* const kByLevel[] = {"", "Sandybridge", "Haswell", "SkylakeX"};
+  return cpu_level >= 1 && cpu_level <= 3 ? kByLevel[cpu_level] : "";
 }
 
 void keep_freed_memory_in_heap() {
