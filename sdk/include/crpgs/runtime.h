@@ -36,7 +36,7 @@ int cpu_vector_level();
 /// The OPENBLAS_CORETYPE to restart with when OpenBLAS picked kernels narrower than the CPU runs
 /// ("SkylakeX", "Haswell" or "Sandybridge"), else "". OpenBLAS falls back to SSE3 "Prescott" on
 /// CPUs newer than itself: Debian 12's 0.3.21 on an Intel Xeon of model 207 (Emerald Rapids) ran
-/// the MLPs' GEMMs 3.3x slower than with SkylakeX (bench/results/train_fern.md).
+/// the MLPs' GEMMs 3.1-3.5x slower than with SkylakeX (bench/results/train_fern.md).
 std::string wider_openblas_core(const std::string& picked, int cpu_level);
 
 /// Set by `crpgs` with OPENBLAS_CORETYPE when it restarted itself for wider kernels: the core
