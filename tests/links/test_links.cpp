@@ -96,13 +96,16 @@ TEST(LinksCosine, AllAnchorsIdenticalPairInIndexOrder) {
 }
 
 TEST(LinksCosine, BlocksOfIdenticalRowsAmongOthersMatchBruteForce) {
-  // Two blocks of identical rows (one of them scaled: same direction) among random rows, across
-  // several similarity blocks: every list is the brute-force order (cosine, |j - i|, j).
+  // Two blocks of identical rows among random rows, across several similarity blocks: every list
+  // is the brute-force order (cosine, |j - i|, j). One block is row 1 scaled by 4, which is
+  // exact, so its rows have row 1's direction to the last bit (row 1 belongs to it too).
   torch::manual_seed(11);
   auto f = torch::randn({240, 6});
   const auto pick = torch::rand({240});
-  f = torch::where((pick < 0.3).unsqueeze(1), f[0].unsqueeze(0), f);
-  f = torch::where((pick > 0.8).unsqueeze(1), 2.5 * f[1].unsqueeze(0), f);
+  const auto row0 = f[0].clone(), row1 = f[1].clone();
+  f = torch::where((pick < 0.3).unsqueeze(1), row0.unsqueeze(0), f);
+  f = torch::where((pick > 0.8).unsqueeze(1), 4 * row1.unsqueeze(0), f);
+  f[1] = row1;
   const auto active = random_mask(240, 0.8, 4);
   const int64_t m = 6;
   auto c = value_or_die(cosine_candidates(f, active, m, 4 * 240 * 50));
@@ -228,6 +231,34 @@ TEST(LinksNearest, MatchesBruteForceOnSpreadFlatAndDuplicatePoints) {
   EXPECT_EQ(to_vec(all.index[600]), (std::vector<int64_t>{600, 0, 300}));
   auto c = value_or_die(nearest_candidates(dup, {}, 3));
   EXPECT_EQ(c.score[0][1].item<float>(), -0.f);
+}
+
+TEST(LinksNearest, TiesAtEqualDistancesGoToTheLowerIndexAsInBruteForce) {
+  // Integer lattice points (every squared distance exact) with 30 copies of one of them: most
+  // neighbours tie with others, often more of them than k takes.
+  torch::manual_seed(3);
+  auto lattice = torch::randint(0, 5, {400, 3}).to(torch::kFloat);
+  auto p = torch::cat({lattice, lattice[7].unsqueeze(0).repeat({30, 1})});
+  const int64_t n = p.size(0), k = 5;
+  auto active = random_mask(n, 0.8, 2);
+  const auto pd = p.to(torch::kDouble);
+  const auto d2 = (pd.unsqueeze(1) - pd.unsqueeze(0)).pow(2).sum(2);  // [n, n], exact
+  const auto d2a = d2.accessor<double, 2>();
+  const auto act = active.accessor<bool, 1>();
+  for (bool with_self : {false, true}) {
+    auto nn = value_or_die(nearest_neighbors(p, active, k, with_self));
+    for (int64_t i = 0; i < n; ++i) {
+      if (!act[i]) continue;
+      std::vector<std::pair<double, int64_t>> order;  // (squared distance, index)
+      for (int64_t j = 0; j < n; ++j)
+        if (j != i && act[j]) order.emplace_back(d2a[i][j], j);
+      std::sort(order.begin(), order.end());
+      std::vector<int64_t> expect;
+      if (with_self) expect.push_back(i);
+      for (size_t t = 0; expect.size() < size_t(k); ++t) expect.push_back(order[t].second);
+      EXPECT_EQ(to_vec(nn.index[i]), expect) << i << (with_self ? " with self" : "");
+    }
+  }
 }
 
 TEST(LinksGreedy, DecayingThresholdPrefersExactMatchesFirst) {

@@ -374,9 +374,19 @@ TEST(LinksTraining, CheckpointKeepsTheLinks) {
   l[l[linked[0].item<int64_t>()].item<int64_t>()] = linked[1].item<int64_t>();  // a root, a leaf
   broken["links"] = l;
   auto w = links_trainer(ds, std::make_shared<PairLinks>());
+  auto w_before = w->model().state_dict();
+  for (auto& kv : w_before) kv.second = kv.second.clone();
   Status st = w->model().load_state_dict(broken);
   ASSERT_FALSE(st.ok());
   EXPECT_NE(st.message().find("checkpoint links:"), std::string::npos) << st.message();
+  // So is a link vector of another length, and neither refusal changes the model.
+  auto short_links = state;
+  short_links["links"] = state.at("links").slice(0, 1);
+  EXPECT_FALSE(w->model().load_state_dict(short_links).ok());
+  const auto w_after = w->model().state_dict();
+  ASSERT_EQ(w_after.size(), w_before.size());
+  for (const auto& kv : w_before)
+    EXPECT_TRUE(torch::equal(kv.second, w_after.at(kv.first))) << kv.first;
   // A model without a link strategy has no leaf model for them: refused, not a crash later.
   auto none = links_trainer(ds, nullptr);
   Status refused = none->model().load_state_dict(state);

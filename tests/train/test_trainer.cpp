@@ -231,7 +231,8 @@ TEST(Trainer, RefusedCheckpointLeavesTheTrainerUnchanged) {
   ASSERT_TRUE(source->save_checkpoint(source->checkpoint_path()).ok());
   auto target = trainer(ds, to);
   for (int i = 0; i < 5; ++i) ASSERT_TRUE(target->step().ok());
-  const auto before = target->model().state_dict();
+  auto before = target->model().state_dict();  // copies: a load into the live tensors shows too
+  for (auto& kv : before) kv.second = kv.second.clone();
   // Rewrite the checkpoint with one entry replaced (or dropped when `value` is undefined).
   auto rewritten = [&](const std::string& key, const torch::Tensor& value) {
     torch::serialize::InputArchive in;
@@ -519,6 +520,52 @@ TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   ASSERT_TRUE(resumed->load_checkpoint(to.output_dir + "/end.pt").ok());
   for (int it = 1; it <= 30; ++it)
     EXPECT_EQ(resumed->view_for_iteration(it), u->view_for_iteration(it)) << it;
+}
+
+// A roll-back returns to a state loaded since the trainer's own snapshot of the same iteration.
+TEST(Trainer, ARollBackAfterALoadReturnsToTheLoadedState) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions to;
+  to.schedule = tiny_schedule(24);
+  to.seed = 5;
+  to.eval_interval = 0;
+  to.checkpoint_interval = 100;
+  to.checkpoint_minutes = 0;
+  const std::string dir = tmp_dir("rollback_after_load");
+  // The state to load: iteration 12 of the same run with its features changed.
+  auto other = trainer(ds, to);
+  for (int i = 0; i < 12; ++i) ASSERT_TRUE(other->step().ok());
+  {
+    torch::NoGradGuard no_grad;
+    parameter(*other, "feature").mul_(0.5);
+  }
+  ASSERT_TRUE(other->save_checkpoint(dir + "/other.pt").ok());
+  ASSERT_TRUE(other->train().ok());  // the reference goes on from it uninterrupted
+
+  to.output_dir = dir + "/run";
+  auto t = trainer(ds, to);
+  TrainControl control;
+  Recorder stop;
+  stop.control = &control;
+  stop.stop_at = 12;
+  ASSERT_EQ(t->train(&stop, &control).code(), StatusCode::kCancelled);  // its snapshot: 12
+  ASSERT_TRUE(t->load_checkpoint(dir + "/other.pt").ok());
+  WarningRecorder rec;
+  bool injected = false;
+  rec.at_iteration = [&](int it) {
+    if (it != 15 || injected) return;
+    injected = true;
+    torch::NoGradGuard no_grad;
+    parameter(*t, "feature")[0].fill_(NAN);
+  };
+  ASSERT_TRUE(t->train(&rec).ok());
+  ASSERT_TRUE(injected);
+  ASSERT_FALSE(rec.warnings.empty());
+  EXPECT_NE(rec.warnings.back().second.find("rolled back to iteration 12"), std::string::npos)
+      << rec.warnings.back().second;
+  auto a = other->model().state_dict(), b = t->model().state_dict();
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
 }
 
 TEST(Trainer, PersistentNonFiniteGradientsStopWithoutABrokenCheckpoint) {

@@ -362,6 +362,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     state_build_id_ = std::move(build_id);
     state_config_hash_ = std::move(config_hash);
     mixed_config_ = mixed_config;
+    // Another state: train() snapshots it anew, even when its own snapshot has this iteration.
+    if (!rollback) last_good_iteration_ = -1;
     if (!rollback) elapsed_ = elapsed_seconds;
     psnr_trace_ = std::move(psnr_trace);
   } catch (const std::exception& e) {
