@@ -58,6 +58,13 @@ Schedule tiny_schedule(int iterations) {
   return s;
 }
 
+/// Every tensor of the two trainers' models is equal.
+void expect_equal_states(Trainer& a, Trainer& b) {
+  const auto sa = a.model().state_dict(), sb = b.model().state_dict();
+  ASSERT_EQ(sa.size(), sb.size());
+  for (const auto& kv : sa) EXPECT_TRUE(torch::equal(kv.second, sb.at(kv.first))) << kv.first;
+}
+
 TEST(Schedule, FastScalesEveryBoundary) {
   Schedule f = Schedule::scaled(0.1);
   EXPECT_EQ(f.iterations, 3000);
@@ -215,9 +222,7 @@ TEST(Trainer, ResumeEqualsUninterrupted) {
 
   EXPECT_EQ(resumed->model().num_anchors(), full->model().num_anchors());
   EXPECT_TRUE(torch::equal(resumed->model().anchors(), full->model().anchors()));
-  auto a = full->model().state_dict(), b = resumed->model().state_dict();
-  ASSERT_EQ(a.size(), b.size());
-  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+  expect_equal_states(*full, *resumed);
 }
 
 TEST(Trainer, RefusedCheckpointLeavesTheTrainerUnchanged) {
@@ -391,6 +396,17 @@ struct WarningRecorder : ProgressCallback {
   }
 };
 
+/// For WarningRecorder::at_iteration: after iteration `at`, once, a NaN in anchor 0's feature
+/// (as if an update had gone wrong).
+std::function<void(int)> poison_feature_once(Trainer& t, int at, bool* injected) {
+  return [&t, at, injected](int it) {
+    if (it != at || *injected) return;
+    *injected = true;
+    torch::NoGradGuard no_grad;
+    parameter(t, "feature")[0].fill_(NAN);
+  };
+}
+
 TEST(Trainer, NonFiniteGradientIsReportedAndItsUpdateDiscarded) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;
@@ -469,12 +485,7 @@ TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   auto t = trainer(ds, to);
   WarningRecorder rec;
   bool injected = false;
-  rec.at_iteration = [&](int it) {
-    if (it != 15 || injected) return;
-    injected = true;
-    torch::NoGradGuard no_grad;
-    parameter(*t, "feature")[0].fill_(NAN);  // as if an update had gone wrong
-  };
+  rec.at_iteration = poison_feature_once(*t, 15, &injected);
   ASSERT_TRUE(t->train(&rec).ok());
   ASSERT_TRUE(injected);
   ASSERT_FALSE(rec.warnings.empty());
@@ -487,9 +498,7 @@ TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   ASSERT_EQ(t->psnr_trace().size(), reference->psnr_trace().size());
   for (size_t i = 0; i < t->psnr_trace().size(); ++i)
     EXPECT_EQ(t->psnr_trace()[i].iteration, reference->psnr_trace()[i].iteration);
-  auto a = reference->model().state_dict(), b = t->model().state_dict();
-  ASSERT_EQ(a.size(), b.size());
-  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+  expect_equal_states(*reference, *t);
 
   // A failure that comes back on the exact replay is in the draws: the next replay draws other
   // views and noise, and training gets past it.
@@ -552,20 +561,13 @@ TEST(Trainer, ARollBackAfterALoadReturnsToTheLoadedState) {
   ASSERT_TRUE(t->load_checkpoint(dir + "/other.pt").ok());
   WarningRecorder rec;
   bool injected = false;
-  rec.at_iteration = [&](int it) {
-    if (it != 15 || injected) return;
-    injected = true;
-    torch::NoGradGuard no_grad;
-    parameter(*t, "feature")[0].fill_(NAN);
-  };
+  rec.at_iteration = poison_feature_once(*t, 15, &injected);
   ASSERT_TRUE(t->train(&rec).ok());
   ASSERT_TRUE(injected);
   ASSERT_FALSE(rec.warnings.empty());
   EXPECT_NE(rec.warnings.back().second.find("rolled back to iteration 12"), std::string::npos)
       << rec.warnings.back().second;
-  auto a = other->model().state_dict(), b = t->model().state_dict();
-  ASSERT_EQ(a.size(), b.size());
-  for (const auto& kv : a) EXPECT_TRUE(torch::equal(kv.second, b.at(kv.first))) << kv.first;
+  expect_equal_states(*other, *t);
 }
 
 TEST(Trainer, PersistentNonFiniteGradientsStopWithoutABrokenCheckpoint) {
