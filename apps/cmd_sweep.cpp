@@ -73,7 +73,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
     if (ex::run_state(r.dir) == ex::RunState::kComplete) {
       ++done;
       row[1] = "done";
-      if (const std::string change = ex::config_change(r, &registry); !change.empty())
+      if (const std::string change = ex::config_change(r, &registry, true); !change.empty())
         row[1] += ", but the sweep now asks for another config (" + change + ")";
       if (auto m = ex::read_run_metrics(r.dir + "/metrics.json"); m.ok()) {
         std::snprintf(buf, sizeof buf, "%.3f dB, %llu B, trained %s", m->psnr_mean,

@@ -417,6 +417,13 @@ TEST(Sweep, AFinishedRunWhoseConfigChangedIsKeptAndNamed) {
   SweepRun edited = s.runs[0];
   edited.overrides.emplace_back("entropy.lambda", "0.25");
   EXPECT_EQ(config_change(edited, nullptr), "entropy.lambda: 1.0e-4 -> 0.25");
+  // Thread counts change how a run is computed, not what it is: a finished run stands.
+  SweepRun threads = s.runs[0];
+  threads.overrides.emplace_back("train.threads", "2");
+  EXPECT_EQ(config_change(threads, nullptr, true), "");
+  EXPECT_EQ(config_change(threads, nullptr), "train.threads: (none) -> 2");
+  edited.overrides.emplace_back("train.threads", "2");
+  EXPECT_EQ(config_change(edited, nullptr, true), "entropy.lambda: 1.0e-4 -> 0.25");
   s.lines.clear();
   auto again = run_sweep_local({edited}, s.opt);
   ASSERT_TRUE(again.ok());

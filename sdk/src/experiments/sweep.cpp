@@ -299,7 +299,8 @@ void flatten(const YAML::Node& n, const std::string& prefix,
 
 }  // namespace
 
-std::string config_change(const SweepRun& run, const ComponentRegistry* registry) {
+std::string config_change(const SweepRun& run, const ComponentRegistry* registry,
+                          bool ignore_thread_counts) {
   const std::string saved_path = run.dir + "/config.yaml";
   std::error_code ec;
   if (!fs::exists(saved_path, ec)) return "";
@@ -313,6 +314,10 @@ std::string config_change(const SweepRun& run, const ComponentRegistry* registry
   std::map<std::string, std::string> a, b;
   flatten(saved->root(), "", a);
   flatten(now->root(), "", b);
+  if (ignore_thread_counts) {
+    for (const char* key : {"train.threads", "rasterizer.threads"}) a.erase(key), b.erase(key);
+    if (a == b) return "";
+  }
   std::vector<std::string> diffs;
   for (const auto& [k, v] : a)
     if (auto it = b.find(k); it == b.end() || it->second != v)
@@ -465,7 +470,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
     if (st == RunState::kComplete) {
       ++sum.skipped;
-      const std::string change = config_change(r, opt.registry);
+      const std::string change = config_change(r, opt.registry, true);
       log(tag + (change.empty() ? ": done, skipped"
                                 : ": done, but the sweep now asks for another config (" + change +
                                       "); kept: delete " + r.dir + " to rerun it"));

@@ -101,8 +101,11 @@ Status prepare_run(const SweepRun& run, const ComponentRegistry* registry);
 /// How the config the run directory was prepared with (RUN/config.yaml, resolved by this build)
 /// differs from the one the sweep builds now: "" when the same (or never prepared), else up to 3
 /// "key: old -> new" items. A finished run whose sweep changed is kept, not rerun: the user
-/// decides, as the results may be wanted.
-std::string config_change(const SweepRun& run, const ComponentRegistry* registry);
+/// decides, as the results may be wanted. `ignore_thread_counts`: train.threads and
+/// rasterizer.threads do not count (a finished run's result stands however many threads computed
+/// it; a resume under another count is not bit-exact, so there they count).
+std::string config_change(const SweepRun& run, const ComponentRegistry* registry,
+                          bool ignore_thread_counts = false);
 
 enum class RunState { kPending, kComplete, kInterrupted };
 /// kComplete: metrics.json readable and no `.running` marker. kInterrupted: a marker was left
