@@ -181,8 +181,9 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
     auto cli = load_image((fs::path(train_out) / "train_00001.png").string());
     ASSERT_TRUE(cli.ok()) << cli.status().to_string();
     EXPECT_TRUE(cli->pixels == own.pixels);
-    // With another split, train view 1 (view 2 of 12 under test_every 8 and 3 alike) is not
-    // the view its embedding was trained on by index: the mean is used, with a note.
+    // With another split a train index may name another view than in training (not train view 1
+    // here: view 2 of 12 under test_every 8 and 3 alike), so every train view takes the mean
+    // embedding, with a note.
     const std::string resplit_out = (dir / "render_resplit").string();
     ASSERT_EQ(run_cli("render '" + file + "' -o '" + resplit_out +
                           "' --views train --threads 1 --set dataset.test_every=3",
