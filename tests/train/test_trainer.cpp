@@ -449,7 +449,7 @@ TEST(Trainer, NonFiniteGradientIsReportedAndItsUpdateDiscarded) {
   EXPECT_EQ(from_prefix->iteration(), 10);
 }
 
-// The first replay after a roll-back is exact; one that fails again draws differently.
+// A checkpoint falls due once a multiple of the interval has passed since the last good state.
 TEST(Trainer, ACheckpointIterationWhoseUpdateIsDiscardedCheckpointsAtTheNextStep) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;
@@ -471,6 +471,7 @@ TEST(Trainer, ACheckpointIterationWhoseUpdateIsDiscardedCheckpointsAtTheNextStep
   EXPECT_EQ(rec.at, (std::vector<int>{5, 11, 15, 16}));
 }
 
+// The first replay after a roll-back is exact; one that fails again draws differently.
 TEST(Trainer, NonFiniteParameterRollsBackToTheLastCheckpointAndReplays) {
   Dataset ds = scene(32, 24, 6);
   TrainOptions to;
