@@ -304,8 +304,8 @@ StatusOr<LinkCandidates> cosine_candidates(const torch::Tensor& features,
   };
   // Rows with identical integers score identically against every row: each query scores one
   // member of such a group exactly and reuses it for the rest, so a block of B identical anchors
-  // costs B² comparisons, not B² dot products. A hash collision between different rows only
-  // leaves the later row in a group of its own.
+  // costs B² comparisons, not B² dot products. A hash collision between different rows leaves
+  // the later one, and its copies, outside any group: slower, never wrong.
   std::vector<int64_t> group(static_cast<size_t>(nv), -1);  // duplicate group id, or -1
   int64_t groups = 0;
   {
