@@ -368,6 +368,34 @@ TEST(RateTraining, SweepAndTrainerAgreeOnTheSharedPrefixKey) {
   EXPECT_EQ(keys.size(), 2u);  // HAC's four weights share one prefix, CRP-GS's another
 }
 
+// fern_rd_sequential.yaml continues fern_rd.yaml's runs: the same ids and directories, and
+// configs that differ only in thread counts (which a finished run's config may).
+TEST(RateTraining, TheSequentialFernSweepHasFernRdsRuns) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = CRPGS_SOURCE_DIR;
+  auto rd = experiments::load_sweep(root + "/configs/sweeps/fern_rd.yaml");
+  auto seq = experiments::load_sweep(root + "/configs/sweeps/fern_rd_sequential.yaml");
+  ASSERT_TRUE(rd.ok() && seq.ok());
+  const std::string out = std::string(CRPGS_TEST_TMP_DIR) + "/sequential_sweep";
+  std::filesystem::remove_all(out);
+  const auto a = experiments::expand_sweep(rd.value(), out);
+  const auto b = experiments::expand_sweep(seq.value(), out);
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    auto run = a[i], other = b[i];
+    run.config_path = root + "/" + run.config_path;
+    other.config_path = root + "/" + other.config_path;
+    EXPECT_EQ(run.id, other.id);
+    EXPECT_EQ(run.dir, other.dir);
+    EXPECT_EQ(run.method, other.method);
+    ASSERT_TRUE(experiments::prepare_run(run, &test::rate_registry()).ok());
+    EXPECT_EQ(experiments::config_change(other, &test::rate_registry(), true), "") << run.id;
+    EXPECT_EQ(experiments::config_change(other, &test::rate_registry()),
+              "rasterizer.threads: 1 -> 2, train.threads: 1 -> 2")
+        << run.id;
+  }
+}
+
 // With real keys the sweep starts the first run of a group without a prefix before the runs of
 // a group whose prefix is published (they can start any time from it).
 TEST(RateTraining, SweepStartsTheRunsThatComputeAPrefixFirst) {
