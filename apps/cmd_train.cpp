@@ -105,9 +105,9 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
     std::printf("%s\n", t.prefix_status().c_str());
   else if (t.iteration() > 0)
     std::printf("resumed at iteration %d%s%s\n", t.iteration(),
-                t.state_build_id().empty() || t.state_build_id() == code_build_id()
+                t.state_origin_differences().empty()
                     ? ""
-                    : " (a checkpoint of another build)",
+                    : (" (" + t.state_origin_differences() + ")").c_str(),
                 t.state_config_hash().empty() || t.state_config_hash() == t.options().config_hash
                     ? ""
                     : " (written under another config: training goes on with this one, "

@@ -245,14 +245,17 @@ TEST(RateTraining, TrainSeedSeedsTheComponentsInitialValues) {
 }
 
 // A tiny rate-path config (rate_start 10 of 30 iterations) with the given weight and seed.
-Config prefix_test_config(double lambda, int seed) {
+Config prefix_test_config(double lambda, int seed, int threads = 1) {
+  const std::string t = std::to_string(threads);
   auto cfg = Config::from_string(
       "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
       "synthetic_views: 6}\n"
-      "train: {schedule: fast, fast_factor: 0.001, threads: 1, eval_interval: 0, seed: " +
-          std::to_string(seed) +
+      "train: {schedule: fast, fast_factor: 0.001, threads: " +
+          t + ", eval_interval: 0, seed: " + std::to_string(seed) +
           "}\n"
-          "rasterizer: {type: cpu, threads: 1}\n"
+          "rasterizer: {type: cpu, threads: " +
+          t +
+          "}\n"
           "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
           "entropy: {type: gaussian}\n"
           "rate: {lambda: " +
@@ -306,9 +309,25 @@ TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
   EXPECT_EQ(shared->iteration(), rate_start);
   EXPECT_NE(shared->prefix_status().find("started at iteration 10"), std::string::npos)
       << shared->prefix_status();
-  // Published by this build: no note that it comes from another one.
+  // Published by this build on the same threads: no note that it comes from elsewhere.
   EXPECT_EQ(shared->state_build_id(), code_build_id());
-  EXPECT_EQ(shared->prefix_status().find("another build"), std::string::npos);
+  EXPECT_EQ(shared->state_execution(), shared->execution());
+  EXPECT_EQ(shared->prefix_status().find("not bit-identical"), std::string::npos)
+      << shared->prefix_status();
+  // Other thread counts share the prefix (they change only the last bits), and the run says so.
+  // Its setup set the process's threads to 2: `shared` still trains on its own 1 (bit-exact below).
+  const Config two_threads = prefix_test_config(0.02, 3, 2);
+  EXPECT_NE(two_threads.hash(), high.hash());
+  EXPECT_EQ(shared_prefix_key(two_threads), key);
+  auto other_threads = prefix_test_trainer(two_threads, dir);
+  EXPECT_EQ(other_threads->iteration(), rate_start);
+  const std::string& note = other_threads->prefix_status();
+  EXPECT_NE(note.find("trained with train.threads 1, rasterizer.threads 1, "), std::string::npos)
+      << note;
+  EXPECT_NE(note.find("continued with train.threads 2, rasterizer.threads 2, "), std::string::npos)
+      << note;
+  EXPECT_NE(note.find("not bit-identical"), std::string::npos) << note;
+  EXPECT_EQ(note.find("another build"), std::string::npos) << note;
   ASSERT_TRUE(shared->train().ok());
   auto alone = prefix_test_trainer(high, "");
   ASSERT_TRUE(alone->train().ok());
@@ -370,7 +389,7 @@ TEST(RateTraining, SweepAndTrainerAgreeOnTheSharedPrefixKey) {
 
 // fern_rd_sequential.yaml continues fern_rd.yaml's runs: the same ids and directories, and
 // configs that differ only in thread counts (which a finished run's config may).
-TEST(RateTraining, TheSequentialFernSweepHasFernRdsRuns) {
+TEST(RateTraining, TheSequentialFernSweepHasFernRdsRunsAndPrefixes) {
   SKIP_WITHOUT_PLUGINS();
   const std::string root = CRPGS_SOURCE_DIR;
   auto rd = experiments::load_sweep(root + "/configs/sweeps/fern_rd.yaml");
@@ -392,6 +411,11 @@ TEST(RateTraining, TheSequentialFernSweepHasFernRdsRuns) {
     EXPECT_EQ(experiments::config_change(other, &test::rate_registry(), true), "") << run.id;
     EXPECT_EQ(experiments::config_change(other, &test::rate_registry()),
               "rasterizer.threads: 1 -> 2, train.threads: 1 -> 2")
+        << run.id;
+    // ...and the same shared prefixes: either sweep continues the other's.
+    EXPECT_EQ(
+        shared_prefix_key(experiments::build_run_config(run, &test::rate_registry()).value()),
+        shared_prefix_key(experiments::build_run_config(other, &test::rate_registry()).value()))
         << run.id;
   }
 }

@@ -12,8 +12,11 @@ namespace crpgs {
 /// (rate.lambda, rate.mask_lambda: the rate and mask terms start after it, method.md §2.3), so
 /// runs whose resolved configs differ only there train identically until then (bit for bit on
 /// one build, thread count and BLAS kernel set) and can share that prefix: for an RD sweep a third
-/// of HAC's 30k iterations. Returns the FNV-1a 64 of the config with those keys blanked, as 16
-/// hex digits; "" for a config without the rate path (no `context` section).
+/// of HAC's 30k iterations. Thread counts (train.threads, rasterizer.threads) are blanked too:
+/// like the BLAS kernels they change only the last bits, and a run that starts from a prefix
+/// trained on others says so (Trainer::state_origin_differences). Returns the FNV-1a 64 of the
+/// config with those keys blanked, as 16 hex digits; "" for a config without the rate path (no
+/// `context` section).
 std::string shared_prefix_key(const Config& resolved);
 
 /// Where the prefix of `key` is published in the prefix directory `dir`.

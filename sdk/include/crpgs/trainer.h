@@ -142,7 +142,7 @@ class Trainer {
   /// max_skipped_steps in a row, or when a parameter itself is non-finite, training rolls back to
   /// the last checkpointed state and replays from there; after max_rollbacks with no checkpoint
   /// written in between it returns kNonFinite. A state with a non-finite parameter is never
-  /// checkpointed.
+  /// checkpointed. Runs on options().threads, and puts the process's thread counts back after.
   Status train(ProgressCallback* progress = nullptr, TrainControl* control = nullptr);
   /// One iteration (iteration() + 1). Returns the loss, or kNonFinite (naming the iteration and
   /// the parameter group) when the loss or a gradient is NaN/Inf: then nothing was updated and
@@ -172,6 +172,18 @@ class Trainer {
   /// TrainOptions::config_hash of the run that wrote the loaded checkpoint or prefix ("" for
   /// none, or a checkpoint from before it was recorded).
   const std::string& state_config_hash() const { return state_config_hash_; }
+  /// How this process trains: thread counts and BLAS kernels, which change the last bits of a
+  /// training but not its config (e.g. "train.threads 2, rasterizer.threads 2, OpenBLAS
+  /// SkylakeX"). Checkpointed, so that a start from another process's state can name the
+  /// difference.
+  std::string execution() const;
+  /// execution() of the process that wrote the loaded checkpoint or prefix ("" for none, or one
+  /// written before checkpoints recorded it).
+  const std::string& state_execution() const { return state_execution_; }
+  /// What differs between the process that wrote the loaded state and this one, "; "-separated:
+  /// another build, other thread counts or BLAS kernels (each makes the continuation differ in
+  /// the last bits from an uninterrupted training); "" when nothing does, or nothing was loaded.
+  std::string state_origin_differences() const;
   void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
@@ -230,6 +242,8 @@ class Trainer {
   std::string prefix_status_;
   std::string state_build_id_;
   std::string state_config_hash_;
+  std::string state_execution_;
+  bool state_loaded_ = false;  // a checkpoint or prefix was loaded (state_* describe it)
   /// True once the state holds iterations trained under another config (a resume after the
   /// config changed, or a start from another run's prefix); checkpointed. Such a state is never
   /// published as a shared prefix: its consumers would not continue a training from the start.

@@ -11,7 +11,10 @@ std::string shared_prefix_key(const Config& resolved) {
   if (!resolved.section("context")) return "";
   auto blanked = Config::from_string(resolved.dump(), "<prefix key>");
   if (!blanked.ok()) return "";
-  for (const char* key : {"rate.lambda=0", "rate.mask_lambda=0"})
+  // Thread counts are not part of the training either (like the BLAS kernels, they change only
+  // the last bits): a sweep run on other thread counts continues the same prefixes.
+  for (const char* key :
+       {"rate.lambda=0", "rate.mask_lambda=0", "train.threads=0", "rasterizer.threads=0"})
     if (!blanked->apply_override(key).ok()) return "";
   return hex64(blanked->hash());
 }

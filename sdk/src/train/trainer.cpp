@@ -269,6 +269,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
     ar.write("build_id", text_tensor(code_build_id()));
     ar.write("config_hash", text_tensor(options_.config_hash));
+    ar.write("execution", text_tensor(execution()));
     ar.write("mixed_config", torch::tensor(int64_t(mixed_config_), torch::kLong));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
@@ -340,6 +341,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
     std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
+    torch::Tensor execution;
+    std::string exec = ar.try_read("execution", execution) ? tensor_text(execution) : "";
     // A roll-back restores our own snapshot; any other state trained under another config (or
     // under one that had been mixed) makes this run's state mixed from here on.
     const bool mixed_config =
@@ -361,6 +364,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     replay_salt_ = replay_salt;
     state_build_id_ = std::move(build_id);
     state_config_hash_ = std::move(config_hash);
+    state_execution_ = std::move(exec);
+    if (!rollback) state_loaded_ = true;
     mixed_config_ = mixed_config;
     // Another state: train() snapshots it anew, even when its own snapshot has this iteration.
     if (!rollback) last_good_iteration_ = -1;
@@ -370,6 +375,25 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + origin + ": " + e.what());
   }
   return OkStatus();
+}
+
+std::string Trainer::execution() const {
+  const YAML::Node r = rasterizer_->hyperparams();
+  std::string s = "train.threads " + std::to_string(options_.threads);
+  if (r.IsMap() && r["threads"]) s += ", rasterizer.threads " + r["threads"].as<std::string>();
+  return s + ", " + blas_kernels();
+}
+
+std::string Trainer::state_origin_differences() const {
+  if (!state_loaded_) return "";
+  std::string out;
+  if (state_build_id_ != code_build_id())
+    out = state_build_id_.empty() ? "written by a build that did not record its id"
+                                  : "written by another build";
+  if (!state_execution_.empty() && state_execution_ != execution())
+    out += (out.empty() ? "" : "; ") + ("trained with " + state_execution_ + ", continued with " +
+                                         execution());
+  return out;
 }
 
 Status Trainer::start_from_prefix(const std::string& path) {
@@ -484,6 +508,8 @@ double Trainer::view_psnr(const View& view) {
 }
 
 Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
+  // This trainer's thread counts, whatever another trainer of the process set since its setup.
+  const ScopedComputeThreads threads(options_.threads);
   const Schedule& sc = options_.schedule;
   const auto start = Clock::now();
   const int first = iteration_;
@@ -976,12 +1002,8 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
     if (st.code() == StatusCode::kInternal) return st;
     std::string status = "started at iteration " + std::to_string(trainer->iteration()) +
                          " from the shared prefix " + prefix;
-    if (st.ok() && trainer->state_build_id() != code_build_id())
-      status += std::string(" (published by ") +
-                (trainer->state_build_id().empty() ? "a build that did not record its id"
-                                                   : "another build") +
-                ": continued like a resume across builds, not bit-identical to training from "
-                "the start with this one)";
+    if (const std::string d = trainer->state_origin_differences(); st.ok() && !d.empty())
+      status += " (" + d + ": not bit-identical to training from the start in this process)";
     if (!st.ok()) {
       std::error_code ec;
       std::filesystem::rename(prefix, prefix + ".unusable", ec);
