@@ -391,8 +391,8 @@ std::string Trainer::state_origin_differences() const {
     out = state_build_id_.empty() ? "written by a build that did not record its id"
                                   : "written by another build";
   if (!state_execution_.empty() && state_execution_ != execution())
-    out += (out.empty() ? "" : "; ") + ("trained with " + state_execution_ + ", continued with " +
-                                         execution());
+    out += (out.empty() ? "" : "; ") +
+           ("trained with " + state_execution_ + ", continued with " + execution());
   return out;
 }
 
