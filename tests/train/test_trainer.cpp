@@ -270,7 +270,7 @@ TEST(Trainer, RefusedCheckpointLeavesTheTrainerUnchanged) {
   }
 }
 
-TEST(Trainer, AStateTrainedPartlyUnderAnotherConfigIsNotPublishedAsPrefix) {
+TEST(Trainer, AStateTrainedPartlyUnderAnotherPrefixKeyIsNotPublishedAsPrefix) {
   Dataset ds = scene(32, 24, 6);
   struct Notes : ProgressCallback {
     bool refused = false;
@@ -284,9 +284,11 @@ TEST(Trainer, AStateTrainedPartlyUnderAnotherConfigIsNotPublishedAsPrefix) {
   to.schedule.rate_start = 8;
   const std::string dir = tmp_dir("mixed_prefix");
   const std::string prefix = dir + "/prefix.pt";
-  auto with = [&](const std::string& hash, const std::string& out, bool publish) {
+  auto with = [&](const std::string& hash, const std::string& out, bool publish,
+                  const std::string& key = "") {
     TrainOptions o = to;
     o.config_hash = hash;
+    o.prefix_key = key;
     o.output_dir = out;
     o.prefix_path = publish ? prefix : "";
     return trainer(ds, o);
@@ -319,6 +321,25 @@ TEST(Trainer, AStateTrainedPartlyUnderAnotherConfigIsNotPublishedAsPrefix) {
   ASSERT_TRUE(a2->train(&na).ok());
   EXPECT_TRUE(fs::exists(prefix));
   EXPECT_FALSE(na.refused);
+
+  // With prefix keys recorded, the key decides: a config that differs only in what the key
+  // leaves out (a rate weight, the thread counts) continues the same prefix; another key does not.
+  fs::remove(prefix);
+  auto k = with("kkkk", dir + "/k", false, "key1");
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(k->step().ok());
+  ASSERT_TRUE(k->save_checkpoint(k->checkpoint_path()).ok());
+  auto other_key = with("llll", dir + "/l", true, "key2");
+  ASSERT_TRUE(other_key->load_checkpoint(k->checkpoint_path()).ok());
+  Notes nl;
+  ASSERT_TRUE(other_key->train(&nl).ok());
+  EXPECT_FALSE(fs::exists(prefix));
+  EXPECT_TRUE(nl.refused);
+  auto same_key = with("mmmm", dir + "/m", true, "key1");
+  ASSERT_TRUE(same_key->load_checkpoint(k->checkpoint_path()).ok());
+  Notes nm;
+  ASSERT_TRUE(same_key->train(&nm).ok());
+  EXPECT_TRUE(fs::exists(prefix));
+  EXPECT_FALSE(nm.refused);
 }
 
 struct Recorder : ProgressCallback {

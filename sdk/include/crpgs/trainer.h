@@ -84,6 +84,11 @@ struct TrainOptions {
   /// hex64 of the resolved config, recorded in checkpoints so that a resume under another
   /// config can say so (train_options_from_config sets it); "" = not recorded.
   std::string config_hash;
+  /// shared_prefix_key of the resolved config (train_options_from_config sets it), recorded in
+  /// checkpoints: a state trained partly under another key is never published as a prefix, one
+  /// resumed under a config that differs only in what the key leaves out (the rate weights,
+  /// thread counts) is. "" = not recorded: config_hash decides instead.
+  std::string prefix_key;
 };
 
 struct ViewMetrics {
@@ -244,8 +249,8 @@ class Trainer {
   std::string state_config_hash_;
   std::string state_execution_;
   bool state_loaded_ = false;  // a checkpoint or prefix was loaded (state_* describe it)
-  /// True once the state holds iterations trained under another config (a resume after the
-  /// config changed, or a start from another run's prefix); checkpointed. Such a state is never
+  /// True once the state holds iterations trained under a config of another prefix key (a
+  /// resume after such a change); checkpointed. Such a state is never
   /// published as a shared prefix: its consumers would not continue a training from the start.
   bool mixed_config_ = false;
 };

@@ -270,6 +270,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("build_id", text_tensor(code_build_id()));
     ar.write("config_hash", text_tensor(options_.config_hash));
     ar.write("execution", text_tensor(execution()));
+    ar.write("prefix_key", text_tensor(options_.prefix_key));
     ar.write("mixed_config", torch::tensor(int64_t(mixed_config_), torch::kLong));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
@@ -343,11 +344,16 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
     torch::Tensor execution;
     std::string exec = ar.try_read("execution", execution) ? tensor_text(execution) : "";
-    // A roll-back restores our own snapshot; any other state trained under another config (or
-    // under one that had been mixed) makes this run's state mixed from here on.
-    const bool mixed_config =
-        (ar.try_read("mixed_config", mixed) && mixed.item<int64_t>() != 0) ||
-        (!rollback && !config_hash.empty() && config_hash != options_.config_hash);
+    // A roll-back restores our own snapshot; any other state trained under a config of another
+    // prefix key (or under one that had been mixed) makes this run's state mixed from here on.
+    // Checkpoints from before the key was recorded compare the whole config.
+    torch::Tensor key;
+    const std::string prefix_key = ar.try_read("prefix_key", key) ? tensor_text(key) : "";
+    const bool other_key = !prefix_key.empty() && !options_.prefix_key.empty()
+                               ? prefix_key != options_.prefix_key
+                               : !config_hash.empty() && config_hash != options_.config_hash;
+    const bool mixed_config = (ar.try_read("mixed_config", mixed) && mixed.item<int64_t>() != 0) ||
+                              (!rollback && other_key);
     const double elapsed_seconds =
         ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
     std::vector<PsnrPoint> psnr_trace;
@@ -795,6 +801,7 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
     o.checkpoint_minutes = get(t, "checkpoint_minutes", o.checkpoint_minutes);
     o.threads = get(t, "threads", o.threads);
     o.config_hash = hex64(resolved.hash());
+    o.prefix_key = shared_prefix_key(resolved);
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("train config: ") + e.what());
   }
