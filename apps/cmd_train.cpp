@@ -227,11 +227,11 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   train->add_flag("--force", force,
                   "train from the start into a directory that holds a run (its checkpoint and "
                   "results are replaced); without it such a directory is refused");
-  train->add_option("--share-prefix", prefix_dir,
-                    "directory of shared training prefixes (rate path): start from the state at "
-                    "rate_start of a run that differs only in rate.lambda/rate.mask_lambda when "
-                    "one is there, and publish this run's when it is not (`crpgs sweep` passes "
-                    "RUNS/prefixes)");
+  train->add_option(
+      "--share-prefix", prefix_dir,
+      "directory of shared training prefixes (rate path): start from the state at rate_start "
+      "of a run that differs only in rate.lambda/rate.mask_lambda or thread counts when one "
+      "is there, and publish this run's when it is not (`crpgs sweep` passes RUNS/prefixes)");
   train->add_option("--method", method,
                     "name of the method in metrics.json and reports (default: the config's file "
                     "name; `crpgs sweep` passes the config name plus its non-rate grid keys)");

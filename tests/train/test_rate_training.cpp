@@ -315,7 +315,7 @@ TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
   EXPECT_EQ(shared->prefix_status().find("not bit-identical"), std::string::npos)
       << shared->prefix_status();
   // Other thread counts share the prefix (they change only the last bits), and the run says so.
-  // Its setup set the process's threads to 2: `shared` still trains on its own 1 (bit-exact below).
+  // Its setup set the process's threads to 2: `shared` still trains on its own 1.
   const Config two_threads = prefix_test_config(0.02, 3, 2);
   EXPECT_NE(two_threads.hash(), high.hash());
   EXPECT_EQ(shared_prefix_key(two_threads), key);
@@ -328,7 +328,14 @@ TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {
       << note;
   EXPECT_NE(note.find("not bit-identical"), std::string::npos) << note;
   EXPECT_EQ(note.find("another build"), std::string::npos) << note;
-  ASSERT_TRUE(shared->train().ok());
+  struct ThreadsSeen : ProgressCallback {
+    int threads = -1;
+    void on_iteration(const TrainingProgress&) override { threads = at::get_num_threads(); }
+  } seen;
+  ASSERT_EQ(at::get_num_threads(), 2);
+  ASSERT_TRUE(shared->train(&seen).ok());
+  EXPECT_EQ(seen.threads, 1);
+  EXPECT_EQ(at::get_num_threads(), 2);  // the process's count is back
   auto alone = prefix_test_trainer(high, "");
   ASSERT_TRUE(alone->train().ok());
   EXPECT_TRUE(same_state(*shared, *alone));

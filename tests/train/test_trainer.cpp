@@ -342,6 +342,41 @@ TEST(Trainer, AStateTrainedPartlyUnderAnotherPrefixKeyIsNotPublishedAsPrefix) {
   EXPECT_FALSE(nm.refused);
 }
 
+// A state remembers where it was trained: resumed on other thread counts and then again on the
+// first ones, it is still not what one process would have trained, and says so.
+TEST(Trainer, AStatesOriginSurvivesFurtherResumes) {
+  Dataset ds = scene(32, 24, 6);
+  TrainOptions one;
+  one.schedule = tiny_schedule(4);
+  one.threads = 1;
+  TrainOptions two = one;
+  two.threads = 2;
+  const std::string dir = tmp_dir("origin");
+  auto a = trainer(ds, one);
+  ASSERT_TRUE(a->step().ok());
+  ASSERT_TRUE(a->save_checkpoint(dir + "/a.pt").ok());
+  EXPECT_EQ(a->state_origin_differences(), "");  // nothing loaded
+  auto same = trainer(ds, one);
+  ASSERT_TRUE(same->load_checkpoint(dir + "/a.pt").ok());
+  EXPECT_EQ(same->state_origin_differences(), "");
+  const std::string first = "trained with train.threads 1, rasterizer.threads 1, ";
+  auto b = trainer(ds, two);
+  ASSERT_TRUE(b->load_checkpoint(dir + "/a.pt").ok());
+  const std::string& db = b->state_origin_differences();
+  EXPECT_EQ(db.find(first), 0u) << db;
+  EXPECT_NE(db.find("continued with train.threads 2, rasterizer.threads 1, "), std::string::npos)
+      << db;
+  EXPECT_EQ(db.find("another build"), std::string::npos) << db;
+  ASSERT_TRUE(b->step().ok());
+  ASSERT_TRUE(b->save_checkpoint(dir + "/b.pt").ok());
+  auto c = trainer(ds, one);
+  ASSERT_TRUE(c->load_checkpoint(dir + "/b.pt").ok());
+  const std::string& dc = c->state_origin_differences();
+  EXPECT_EQ(dc.find(first), 0u) << dc;  // b's resume, kept in the state
+  EXPECT_NE(dc.find("; trained with train.threads 2, rasterizer.threads 1, "), std::string::npos)
+      << dc;
+}
+
 struct Recorder : ProgressCallback {
   std::vector<TrainingProgress> seen;
   std::vector<std::string> checkpoints;

@@ -71,7 +71,8 @@ struct TrainOptions {
   /// Also checkpoint when this many minutes of training passed since the last one (a 4k-iteration
   /// run never reaches checkpoint_interval; a machine reset should not lose an hour); 0 = off.
   double checkpoint_minutes = 15;
-  int threads = 0;  ///< at::set_num_threads; 0 = all cores
+  /// at::set_num_threads for train(); 0 = the process's count (setup_training sets all cores)
+  int threads = 0;
   /// Non-finite iterations in a row whose updates are discarded before rolling back to the last
   /// good state (the last checkpoint, kept in memory), and roll-backs before giving up.
   int max_skipped_steps = 5;
@@ -147,7 +148,8 @@ class Trainer {
   /// max_skipped_steps in a row, or when a parameter itself is non-finite, training rolls back to
   /// the last checkpointed state and replays from there; after max_rollbacks with no checkpoint
   /// written in between it returns kNonFinite. A state with a non-finite parameter is never
-  /// checkpointed. Runs on options().threads, and puts the process's thread counts back after.
+  /// checkpointed. Runs on options().threads (when > 0), and puts the process's thread counts
+  /// back after.
   Status train(ProgressCallback* progress = nullptr, TrainControl* control = nullptr);
   /// One iteration (iteration() + 1). Returns the loss, or kNonFinite (naming the iteration and
   /// the parameter group) when the loss or a gradient is NaN/Inf: then nothing was updated and
@@ -185,10 +187,12 @@ class Trainer {
   /// execution() of the process that wrote the loaded checkpoint or prefix ("" for none, or one
   /// written before checkpoints recorded it).
   const std::string& state_execution() const { return state_execution_; }
-  /// What differs between the process that wrote the loaded state and this one, "; "-separated:
-  /// another build, other thread counts or BLAS kernels (each makes the continuation differ in
-  /// the last bits from an uninterrupted training); "" when nothing does, or nothing was loaded.
-  std::string state_origin_differences() const;
+  /// What differed, over the loaded state's history, between the processes that trained it and
+  /// the ones that continued it ("; "-separated): another build, other thread counts or BLAS
+  /// kernels, each of which makes the state differ in the last bits from one trained in this
+  /// process alone. Checkpointed, so a later resume on the first process's settings still says
+  /// so. "" when nothing differed, or nothing was loaded.
+  const std::string& state_origin_differences() const { return origin_; }
   void set_prefix_status(std::string status) { prefix_status_ = std::move(status); }
   /// output_dir/checkpoint.pt, or "" without an output dir.
   std::string checkpoint_path() const;
@@ -248,7 +252,10 @@ class Trainer {
   std::string state_build_id_;
   std::string state_config_hash_;
   std::string state_execution_;
-  bool state_loaded_ = false;  // a checkpoint or prefix was loaded (state_* describe it)
+  std::string origin_;  // state_origin_differences()
+  /// What differs between a writer of (build_id, execution_text) and this process.
+  std::string differences_from(const std::string& build_id,
+                               const std::string& execution_text) const;
   /// True once the state holds iterations trained under a config of another prefix key (a
   /// resume after such a change); checkpointed. Such a state is never
   /// published as a shared prefix: its consumers would not continue a training from the start.

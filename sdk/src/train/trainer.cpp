@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <numeric>
+#include <optional>
 #include <random>
 #include <sstream>
 
@@ -271,6 +272,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("config_hash", text_tensor(options_.config_hash));
     ar.write("execution", text_tensor(execution()));
     ar.write("prefix_key", text_tensor(options_.prefix_key));
+    ar.write("origin", text_tensor(origin_));
     ar.write("mixed_config", torch::tensor(int64_t(mixed_config_), torch::kLong));
     std::vector<double> trace;  // [M, 3]: seconds, iteration, PSNR
     for (const auto& p : psnr_trace_)
@@ -342,7 +344,7 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
     std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
-    torch::Tensor execution;
+    torch::Tensor execution, origin_text;
     std::string exec = ar.try_read("execution", execution) ? tensor_text(execution) : "";
     // A roll-back restores our own snapshot; any other state trained under a config of another
     // prefix key (or under one that had been mixed) makes this run's state mixed from here on.
@@ -368,10 +370,14 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     iteration_ = int(it.item<int64_t>());
     gen_.set_state(rng);
     replay_salt_ = replay_salt;
-    state_build_id_ = std::move(build_id);
-    state_config_hash_ = std::move(config_hash);
-    state_execution_ = std::move(exec);
-    if (!rollback) state_loaded_ = true;
+    if (!rollback) {  // a roll-back returns to a state of this process: same origin
+      origin_ = ar.try_read("origin", origin_text) ? tensor_text(origin_text) : "";
+      if (const std::string d = differences_from(build_id, exec); !d.empty())
+        origin_ += (origin_.empty() ? "" : "; ") + d;
+      state_build_id_ = std::move(build_id);
+      state_config_hash_ = std::move(config_hash);
+      state_execution_ = std::move(exec);
+    }
     mixed_config_ = mixed_config;
     // Another state: train() snapshots it anew, even when its own snapshot has this iteration.
     if (!rollback) last_good_iteration_ = -1;
@@ -385,20 +391,23 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
 
 std::string Trainer::execution() const {
   const YAML::Node r = rasterizer_->hyperparams();
-  std::string s = "train.threads " + std::to_string(options_.threads);
-  if (r.IsMap() && r["threads"]) s += ", rasterizer.threads " + r["threads"].as<std::string>();
+  std::string s = "train.threads " + std::to_string(resolve_threads(options_.threads));
+  if (r.IsMap() && r["threads"])
+    s += ", rasterizer.threads " + std::to_string(resolve_threads(r["threads"].as<int>()));
   return s + ", " + blas_kernels();
 }
 
-std::string Trainer::state_origin_differences() const {
-  if (!state_loaded_) return "";
+std::string Trainer::differences_from(const std::string& build_id,
+                                      const std::string& execution_text) const {
   std::string out;
-  if (state_build_id_ != code_build_id())
-    out = state_build_id_.empty() ? "written by a build that did not record its id"
-                                  : "written by another build";
-  if (!state_execution_.empty() && state_execution_ != execution())
+  if (build_id != code_build_id())
+    out = build_id.empty() ? "written by a build that did not record its id"
+                           : "written by another build";
+  const std::string ours = execution();
+  if (execution_text != ours)
     out += (out.empty() ? "" : "; ") +
-           ("trained with " + state_execution_ + ", continued with " + execution());
+           (execution_text.empty() ? "its thread counts and BLAS kernels not recorded"
+                                   : "trained with " + execution_text + ", continued with " + ours);
   return out;
 }
 
@@ -428,8 +437,8 @@ void Trainer::publish_prefix(ProgressCallback* progress) const {
   if (mixed_config_) {
     if (progress)
       progress->on_note(iteration_,
-                        "shared prefix not written: part of this state was trained "
-                        "under another config (resumed after a config change)");
+                        "shared prefix not written: part of this state was trained under "
+                        "a config of another prefix key (resumed after a config change)");
     return;
   }
   Status st = nonfinite_parameter_group().empty()
@@ -438,8 +447,10 @@ void Trainer::publish_prefix(ProgressCallback* progress) const {
   if (st.ok()) st = save_checkpoint(path);
   if (!progress) return;
   if (st.ok())
-    progress->on_note(iteration_, "shared prefix written: " + path +
-                                      " (runs that differ only in the rate weights start there)");
+    progress->on_note(
+        iteration_,
+        "shared prefix written: " + path +
+            " (runs that differ only in the rate weights or thread counts start there)");
   else
     progress->on_warning(iteration_, "shared prefix not written: " + st.message());
 }
@@ -514,8 +525,10 @@ double Trainer::view_psnr(const View& view) {
 }
 
 Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
-  // This trainer's thread counts, whatever another trainer of the process set since its setup.
-  const ScopedComputeThreads threads(options_.threads);
+  // This trainer's thread counts, whatever another trainer of the process set since its setup
+  // (0: the process's, as setup_training set them).
+  std::optional<ScopedComputeThreads> threads;
+  if (options_.threads > 0) threads.emplace(options_.threads);
   const Schedule& sc = options_.schedule;
   const auto start = Clock::now();
   const int first = iteration_;

@@ -19,9 +19,9 @@
 ///     - {name: fern, set: {dataset.format: llff, dataset.path: /data/fern}}
 ///   resources: {cpus: 4, mem: 16G, time: "08:00:00", partition: batch}   # Slurm
 ///   workers: 2                      # local parallel runs
-///   share_prefix: true              # default; runs that differ only in the rate weights share
-///                                   # their training up to rate_start (RUNS/prefixes, see
-///                                   # crpgs/shared_prefix.h)
+///   share_prefix: true              # default; runs that differ only in the rate weights
+///                                   # (or thread counts) share their training up to
+///                                   # rate_start (RUNS/prefixes, see crpgs/shared_prefix.h)
 #pragma once
 
 #include <atomic>
