@@ -37,6 +37,9 @@ StatusOr<Fixture> make_fixture(int64_t n, uint64_t seed) {
   if (!raw.ok()) return raw.status();
   Fixture f;
   CRPGS_ASSIGN_OR_RETURN(f.config, raw->resolve(registry()));
+  // The components draw their tables and MLPs from libtorch's global generator, which each
+  // process seeds at random: seeded here, a fixture is the same model in every run.
+  torch::manual_seed(seed);
   crpgs_create_args args = create_args_for(f.config);
   CRPGS_ASSIGN_OR_RETURN(
       f.components.features,
