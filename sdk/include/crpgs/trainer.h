@@ -257,8 +257,8 @@ class Trainer {
   std::string differences_from(const std::string& build_id,
                                const std::string& execution_text) const;
   /// True once the state holds iterations trained under a config of another prefix key (a
-  /// resume after such a change); checkpointed. Such a state is never
-  /// published as a shared prefix: its consumers would not continue a training from the start.
+  /// resume after such a change); checkpointed. Such a state is never published as a shared
+  /// prefix: its consumers would not continue a training from the start.
   bool mixed_config_ = false;
 };
 

@@ -339,17 +339,15 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       return Status(StatusCode::kCorruptBitstream, origin + ": bad iteration in the checkpoint");
     gen_.clone().set_state(rng);  // throws on a malformed state
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace, build, config, salt, mixed;
+    torch::Tensor elapsed, trace, build, config, salt, mixed, execution, origin_text, key;
     const uint64_t replay_salt =
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
     std::string config_hash = ar.try_read("config_hash", config) ? tensor_text(config) : "";
-    torch::Tensor execution, origin_text;
     std::string exec = ar.try_read("execution", execution) ? tensor_text(execution) : "";
     // A roll-back restores our own snapshot; any other state trained under a config of another
     // prefix key (or under one that had been mixed) makes this run's state mixed from here on.
     // Checkpoints from before the key was recorded compare the whole config.
-    torch::Tensor key;
     const std::string prefix_key = ar.try_read("prefix_key", key) ? tensor_text(key) : "";
     const bool other_key = !prefix_key.empty() && !options_.prefix_key.empty()
                                ? prefix_key != options_.prefix_key
@@ -912,9 +910,8 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(TrainOptions train_options, train_options_from_config(resolved));
   CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions model_options, model_options_from_config(resolved));
   train_options.output_dir = setup.output_dir;
-  const std::string prefix_key = setup.prefix_dir.empty() ? "" : shared_prefix_key(resolved);
-  if (!prefix_key.empty())
-    train_options.prefix_path = shared_prefix_path(setup.prefix_dir, prefix_key);
+  if (!setup.prefix_dir.empty() && !train_options.prefix_key.empty())
+    train_options.prefix_path = shared_prefix_path(setup.prefix_dir, train_options.prefix_key);
   // 2. Threads (libtorch starts with one here) and the allocator.
   set_compute_threads(train_options.threads);
   keep_freed_memory_in_heap();
