@@ -7,5 +7,9 @@ list(APPEND CRPGS_TORCH_TEST_SOURCES
   ../plugins/context/hash_grid/binary_grid.cpp
   ../plugins/context/hash_grid/hash_grid_kernels.cpp
   ../plugins/entropy/gaussian/gaussian_coding.cpp)
-set_source_files_properties(../plugins/context/hash_grid/hash_grid_kernels.cpp
-  ../plugins/entropy/gaussian/gaussian_coding.cpp PROPERTIES COMPILE_OPTIONS "-ffp-contract=off")
+set_source_files_properties(../plugins/entropy/gaussian/gaussian_coding.cpp PROPERTIES
+  COMPILE_OPTIONS "-ffp-contract=off")
+# The grid kernels' ISA clones would take the precompiled header's options (contraction on).
+include(${CMAKE_CURRENT_LIST_DIR}/../../plugins/context/hash_grid/kernel_options.cmake)
+set_source_files_properties(../plugins/context/hash_grid/hash_grid_kernels.cpp PROPERTIES
+  COMPILE_OPTIONS "${CRPGS_HASH_GRID_KERNEL_OPTIONS}" SKIP_PRECOMPILE_HEADERS ON)

@@ -11,67 +11,120 @@
 #include <string>
 #include <vector>
 
+#include "crpgs/target_clones.h"
+
 namespace crpgs::hash_grid {
 namespace {
 
 constexpr uint32_t kPrimes[3] = {1u, 2654435761u, 805459861u};
 
-/// Weights (normalised) and table rows of the 2^DIM corners of one point at one level.
-/// Returns false if the point is outside [0, 1] on an axis the level reads. Each axis's two
-/// candidate weights, border flags, dense and hash terms are computed once and combined per
-/// corner in the same order as the reference, so the results are bit-identical to it.
+/// Points whose corners are computed together: one vector of lanes per corner term.
+constexpr int kLanes = 16;
+
+/// The 2^dim corners of up to kLanes points at one level: normalised weights and table rows,
+/// corner-major so that the lanes are contiguous. ok = 0 for a point outside [0, 1] on an axis
+/// the level reads (its weights are then meaningless).
+template <typename scalar_t>
+struct CornerBlock {
+  alignas(64) scalar_t w[8][kLanes];
+  alignas(64) int32_t row[8][kLanes];
+  alignas(64) uint32_t ok[kLanes];
+};
+
+// Rows fit int32: a table holds at most kMaxTableValues values.
+static_assert(kMaxTableValues <= int64_t(INT32_MAX));
+
+/// Each axis's two candidate weights, border flags, dense and hash terms are computed once and
+/// combined per corner in the same order as the reference, so the results are bit-identical to
+/// it. Lanes run independently (no early exit, out-of-range coordinates replaced by 0, indices in
+/// wrapping uint32), so the loop over them vectorises.
 template <int DIM, typename scalar_t>
-bool corners_dim(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
-  scalar_t wd[DIM][2];
-  bool border_d[DIM][2];
-  int64_t dense_d[DIM][2];
-  uint32_t hash_d[DIM][2];
-  int64_t stride = 1;
+[[gnu::always_inline]] inline void corners_block_dim(const GridLevel& lv, const scalar_t* pos,
+                                                     int64_t n, CornerBlock<scalar_t>& cb) {
+  scalar_t u[DIM][kLanes];
   for (int d = 0; d < DIM; ++d) {
-    const scalar_t v = u[lv.axes[d]];
-    if (!(v >= scalar_t(0) && v <= scalar_t(1))) return false;
-    const scalar_t p = v * scalar_t(lv.res - 2) + scalar_t(0.5);
-    const scalar_t fl = std::floor(p);
-    const scalar_t frac = p - fl;
-    const int64_t id[2] = {int64_t(fl), std::min(int64_t(fl) + 1, lv.res - 1)};
-    wd[d][0] = scalar_t(1) - frac;
-    wd[d][1] = frac;
-    for (int b = 0; b < 2; ++b) {
-      border_d[d][b] = id[b] == 0 || id[b] == lv.res - 1;
-      dense_d[d][b] = id[b] * stride;
-      hash_d[d][b] = uint32_t(id[b]) * kPrimes[d];
-    }
-    stride *= lv.res;
+    std::fill(u[d], u[d] + kLanes, scalar_t(0));
+    for (int64_t i = 0; i < n; ++i) u[d][i] = pos[i * 3 + lv.axes[d]];
   }
+  const scalar_t scale = scalar_t(lv.res - 2);
+  const int32_t last = int32_t(lv.res - 1);
+  const uint32_t res = uint32_t(lv.res);
+  const int32_t offset = int32_t(lv.offset);
   // A dense index is below res^dim <= size; a hashed level's size is a power of two, so the
-  // modulo is a mask instead of an int64 division per corner.
+  // modulo is a mask.
   const uint32_t hash_mask = uint32_t(lv.size - 1);
-  scalar_t sum = 0;
-  for (int c = 0; c < (1 << DIM); ++c) {
-    scalar_t wc = 1;
-    bool border = false;
-    int64_t dense = 0;
-    uint32_t hash = 0;
+  const uint32_t dense_sel = lv.dense ? ~uint32_t(0) : 0;  // a select the lanes share
+  for (int i = 0; i < kLanes; ++i) {
+    scalar_t wd[DIM][2];
+    uint32_t border_d[DIM][2];
+    uint32_t dense_d[DIM][2];
+    uint32_t hash_d[DIM][2];
+    uint32_t inside = 1;
+    uint32_t stride = 1;
+#pragma GCC unroll 3
     for (int d = 0; d < DIM; ++d) {
-      const int b = (c >> d) & 1;
-      wc = wc * wd[d][b];
-      border = border || border_d[d][b];
-      dense += dense_d[d][b];
-      hash ^= hash_d[d][b];
+      const scalar_t raw = u[d][i];
+      // Bitwise & and |, not && and ||: no branch per lane.
+      const uint32_t in = uint32_t(raw >= scalar_t(0)) & uint32_t(raw <= scalar_t(1));
+      inside &= in;
+      const scalar_t v = in ? raw : scalar_t(0);
+      const scalar_t p = v * scale + scalar_t(0.5);
+      const scalar_t fl = std::floor(p);
+      const scalar_t frac = p - fl;
+      const int32_t id0 = int32_t(fl);
+      const int32_t id[2] = {id0, std::min(id0 + 1, last)};
+      wd[d][0] = scalar_t(1) - frac;
+      wd[d][1] = frac;
+      for (int b = 0; b < 2; ++b) {
+        border_d[d][b] = uint32_t(id[b] == 0) | uint32_t(id[b] == last);
+        dense_d[d][b] = uint32_t(id[b]) * stride;  // wraps only on hashed levels, unused there
+        hash_d[d][b] = uint32_t(id[b]) * kPrimes[d];
+      }
+      stride *= res;
     }
-    if (border) wc = 0;
-    w[c] = wc;
-    sum = sum + wc;
-    row[c] = lv.offset + (lv.dense ? dense : int64_t(hash & hash_mask));
+    scalar_t sum = 0;
+#pragma GCC unroll 8
+    for (int c = 0; c < (1 << DIM); ++c) {
+      scalar_t wc = 1;
+      uint32_t border = 0;
+      uint32_t dense = 0, hash = 0;
+      for (int d = 0; d < DIM; ++d) {
+        const int b = (c >> d) & 1;
+        wc = wc * wd[d][b];
+        border |= border_d[d][b];
+        dense += dense_d[d][b];
+        hash ^= hash_d[d][b];
+      }
+      wc = border ? scalar_t(0) : wc;
+      cb.w[c][i] = wc;
+      sum = sum + wc;
+      cb.row[c][i] = offset + int32_t((dense & dense_sel) | (hash & hash_mask & ~dense_sel));
+    }
+    const scalar_t denom = sum == scalar_t(0) ? scalar_t(1e-9) : sum;
+#pragma GCC unroll 8
+    for (int c = 0; c < (1 << DIM); ++c) cb.w[c][i] = cb.w[c][i] / denom;
+    cb.ok[i] = inside;
   }
-  const scalar_t denom = sum == scalar_t(0) ? scalar_t(1e-9) : sum;
-  for (int c = 0; c < (1 << DIM); ++c) w[c] = w[c] / denom;
-  return true;
 }
 
 template <typename scalar_t>
-bool corners(const GridLevel& lv, const scalar_t* u, scalar_t* w, int64_t* row) {
-  return lv.dim == 3 ? corners_dim<3>(lv, u, w, row) : corners_dim<2>(lv, u, w, row);
+[[gnu::always_inline]] inline void corners_block_impl(const GridLevel& lv, const scalar_t* pos,
+                                                      int64_t n, CornerBlock<scalar_t>& cb) {
+  if (lv.dim == 3)
+    corners_block_dim<3>(lv, pos, n, cb);
+  else
+    corners_block_dim<2>(lv, pos, n, cb);
+}
+
+// float (training) gets a vector clone per ISA; every clone rounds alike (IEEE operations, no
+// contraction), so encoder and decoder agree whichever one a machine picks.
+CRPGS_TARGET_CLONES
+void corners_block(const GridLevel& lv, const float* pos, int64_t n, CornerBlock<float>& cb) {
+  corners_block_impl(lv, pos, n, cb);
+}
+
+void corners_block(const GridLevel& lv, const double* pos, int64_t n, CornerBlock<double>& cb) {
+  corners_block_impl(lv, pos, n, cb);
 }
 
 /// Sign bits of a binarised table, one byte per row (bit f = value f >= 0, HAC's convention):
@@ -102,8 +155,7 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
   const std::vector<uint8_t> signs =
       packed ? pack_signs(table, spec.n_entries, F) : std::vector<uint8_t>();
   at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
-    scalar_t w[8];
-    int64_t row[8];
+    CornerBlock<scalar_t> cb;
     // Level-outer inside blocks of 1024 points: one level's table and the block's output rows
     // stay in cache.
     for (int64_t b0 = begin; b0 < end; b0 += 1024) {
@@ -112,21 +164,26 @@ void forward_impl_f(const GridSpec& spec, const scalar_t* pos, const scalar_t* t
       std::fill(out + b0 * width, out + b1 * width, scalar_t(0));
       for (size_t l = 0; l < spec.levels.size(); ++l) {
         const GridLevel& lv = spec.levels[l];
-        for (int64_t b = b0; b < b1; ++b) {
-          scalar_t* o = out + b * width + int64_t(l) * F;
-          if (!corners(lv, pos + b * 3, w, row)) continue;
-          for (int c = 0; c < (1 << lv.dim); ++c) {
-            if (packed) {
-              const unsigned bits = signs[size_t(row[c])];
-              // Branch-free sign: random signs would mispredict a branch half the time.
-              for (int64_t f = 0; f < F; ++f)
-                o[f] = o[f] + w[c] * scalar_t(int((bits >> f) & 1u) * 2 - 1);
-              continue;
-            }
-            const scalar_t* t = table + row[c] * F;
-            for (int64_t f = 0; f < F; ++f) {
-              const scalar_t v = binarize ? scalar_t(int(t[f] >= scalar_t(0)) * 2 - 1) : t[f];
-              o[f] = o[f] + w[c] * v;
+        for (int64_t s0 = b0; s0 < b1; s0 += kLanes) {
+          const int64_t m = std::min<int64_t>(kLanes, b1 - s0);
+          corners_block(lv, pos + s0 * 3, m, cb);
+          for (int64_t i = 0; i < m; ++i) {
+            if (!cb.ok[i]) continue;
+            scalar_t* o = out + (s0 + i) * width + int64_t(l) * F;
+            for (int c = 0; c < (1 << lv.dim); ++c) {
+              const scalar_t w = cb.w[c][i];
+              if (packed) {
+                const unsigned bits = signs[size_t(cb.row[c][i])];
+                // Branch-free sign: random signs would mispredict a branch half the time.
+                for (int64_t f = 0; f < F; ++f)
+                  o[f] = o[f] + w * scalar_t(int((bits >> f) & 1u) * 2 - 1);
+                continue;
+              }
+              const scalar_t* t = table + int64_t(cb.row[c][i]) * F;
+              for (int64_t f = 0; f < F; ++f) {
+                const scalar_t v = binarize ? scalar_t(int(t[f] >= scalar_t(0)) * 2 - 1) : t[f];
+                o[f] = o[f] + w * v;
+              }
             }
           }
         }
@@ -156,18 +213,22 @@ void backward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* gr
   for (int64_t i = 0; i < n_levels; ++i)
     order[size_t(i)] = i % 2 == 0 ? i / 2 : n_levels - 1 - i / 2;
   at::parallel_for(0, n_levels, 1, [&](int64_t lbegin, int64_t lend) {
-    scalar_t w[8];
-    int64_t row[8];
-    for (int64_t i = lbegin; i < lend; ++i) {
-      const int64_t l = order[size_t(i)];
+    CornerBlock<scalar_t> cb;
+    for (int64_t k = lbegin; k < lend; ++k) {
+      const int64_t l = order[size_t(k)];
       const GridLevel& lv = spec.levels[size_t(l)];
-      for (int64_t b = 0; b < n; ++b) {
-        if (!corners(lv, pos + b * 3, w, row)) continue;
-        const scalar_t* go = grad_out + b * width + l * F;
-        for (int c = 0; c < (1 << lv.dim); ++c) {
-          if (w[c] == scalar_t(0)) continue;
-          scalar_t* gt = grad_table + row[c] * F;
-          for (int64_t f = 0; f < F; ++f) gt[f] = gt[f] + w[c] * go[f];
+      for (int64_t s0 = 0; s0 < n; s0 += kLanes) {
+        const int64_t m = std::min<int64_t>(kLanes, n - s0);
+        corners_block(lv, pos + s0 * 3, m, cb);
+        for (int64_t i = 0; i < m; ++i) {
+          if (!cb.ok[i]) continue;
+          const scalar_t* go = grad_out + (s0 + i) * width + l * F;
+          for (int c = 0; c < (1 << lv.dim); ++c) {
+            const scalar_t w = cb.w[c][i];
+            if (w == scalar_t(0)) continue;
+            scalar_t* gt = grad_table + int64_t(cb.row[c][i]) * F;
+            for (int64_t f = 0; f < F; ++f) gt[f] = gt[f] + w * go[f];
+          }
         }
       }
     }

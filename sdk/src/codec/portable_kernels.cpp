@@ -8,8 +8,8 @@
 #include <limits>
 #include <vector>
 
-#include "core/target_clones.h"
 #include "crpgs/portable_math.h"
+#include "crpgs/target_clones.h"
 
 namespace crpgs {
 namespace {

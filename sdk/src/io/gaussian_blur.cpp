@@ -4,7 +4,7 @@
 /// same bits (no FMA contraction in this file).
 #include "io/gaussian_blur.h"
 
-#include "core/target_clones.h"
+#include "crpgs/target_clones.h"
 
 namespace crpgs::ssim_window {
 namespace {

@@ -4,7 +4,7 @@
 /// units; the backward's loops over the hidden units (and the ReLU's) vectorise as they are.
 #include "model/sparse_head_kernels.h"
 
-#include "core/target_clones.h"
+#include "crpgs/target_clones.h"
 
 namespace crpgs::sparse_head {
 namespace {

@@ -8,7 +8,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "core/target_clones.h"
+#include "crpgs/target_clones.h"
 #include "raster/constants.h"
 
 namespace crpgs::raster::kernels {

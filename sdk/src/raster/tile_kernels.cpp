@@ -10,7 +10,7 @@
 #include <cmath>
 #include <vector>
 
-#include "core/target_clones.h"
+#include "crpgs/target_clones.h"
 #include "raster/constants.h"
 
 #define CRPGS_INLINE inline __attribute__((always_inline))
