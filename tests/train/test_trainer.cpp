@@ -375,6 +375,15 @@ TEST(Trainer, AStatesOriginSurvivesFurtherResumes) {
   EXPECT_EQ(dc.find(first), 0u) << dc;  // b's resume, kept in the state
   EXPECT_NE(dc.find("; trained with train.threads 2, rasterizer.threads 1, "), std::string::npos)
       << dc;
+  // Back to two threads: the same difference as b's resume, which the history holds once.
+  ASSERT_TRUE(c->step().ok());
+  ASSERT_TRUE(c->save_checkpoint(dir + "/c.pt").ok());
+  auto d = trainer(ds, two);
+  ASSERT_TRUE(d->load_checkpoint(dir + "/c.pt").ok());
+  const std::string& dd = d->state_origin_differences();
+  EXPECT_EQ(dd.find(first), 0u) << dd;
+  EXPECT_EQ(dd.find(first, 1), std::string::npos) << dd;
+  EXPECT_EQ(dd, dc) << "nothing new happened since c's resume";
 }
 
 struct Recorder : ProgressCallback {

@@ -253,9 +253,10 @@ class Trainer {
   std::string state_config_hash_;
   std::string state_execution_;
   std::string origin_;  // state_origin_differences()
-  /// What differs between a writer of (build_id, execution_text) and this process.
-  std::string differences_from(const std::string& build_id,
-                               const std::string& execution_text) const;
+  /// What differs between a writer of (build_id, execution_text) and this process, one
+  /// sentence each.
+  std::vector<std::string> differences_from(const std::string& build_id,
+                                            const std::string& execution_text) const;
   /// True once the state holds iterations trained under a config of another prefix key (a
   /// resume after such a change); checkpointed. Such a state is never published as a shared
   /// prefix: its consumers would not continue a training from the start.

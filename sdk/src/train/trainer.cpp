@@ -370,8 +370,10 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     replay_salt_ = replay_salt;
     if (!rollback) {  // a roll-back returns to a state of this process: same origin
       origin_ = ar.try_read("origin", origin_text) ? tensor_text(origin_text) : "";
-      if (const std::string d = differences_from(build_id, exec); !d.empty())
-        origin_ += (origin_.empty() ? "" : "; ") + d;
+      // A difference already in the history (another build again) is not repeated.
+      for (const std::string& d : differences_from(build_id, exec))
+        if (("; " + origin_ + "; ").find("; " + d + "; ") == std::string::npos)
+          origin_ += (origin_.empty() ? "" : "; ") + d;
       state_build_id_ = std::move(build_id);
       state_config_hash_ = std::move(config_hash);
       state_execution_ = std::move(exec);
@@ -395,17 +397,17 @@ std::string Trainer::execution() const {
   return s + ", " + blas_kernels();
 }
 
-std::string Trainer::differences_from(const std::string& build_id,
-                                      const std::string& execution_text) const {
-  std::string out;
+std::vector<std::string> Trainer::differences_from(const std::string& build_id,
+                                                   const std::string& execution_text) const {
+  std::vector<std::string> out;
   if (build_id != code_build_id())
-    out = build_id.empty() ? "written by a build that did not record its id"
-                           : "written by another build";
+    out.push_back(build_id.empty() ? "written by a build that did not record its id"
+                                   : "written by another build");
   const std::string ours = execution();
   if (execution_text != ours)
-    out += (out.empty() ? "" : "; ") +
-           (execution_text.empty() ? "its thread counts and BLAS kernels not recorded"
-                                   : "trained with " + execution_text + ", continued with " + ours);
+    out.push_back(execution_text.empty()
+                      ? "its thread counts and BLAS kernels not recorded"
+                      : "trained with " + execution_text + ", continued with " + ours);
   return out;
 }
 
