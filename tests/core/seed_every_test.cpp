@@ -5,7 +5,6 @@
 // seed, to look for draws that a test depends on.
 #include <cstdio>
 #include <cstdlib>
-#include <string>
 
 #include <gtest/gtest.h>
 #include <torch/torch.h>
@@ -15,7 +14,13 @@ namespace {
 uint64_t test_seed() {
   const char* env = std::getenv("CRPGS_TEST_SEED");
   if (env == nullptr || *env == '\0') return 0;
-  return std::stoull(env);
+  char* end = nullptr;
+  const unsigned long long seed = std::strtoull(env, &end, 10);
+  if (*end != '\0' || *env == '-') {
+    std::fprintf(stderr, "CRPGS_TEST_SEED must be an unsigned integer, got '%s'\n", env);
+    std::exit(2);
+  }
+  return seed;
 }
 
 class SeedEveryTest : public ::testing::EmptyTestEventListener {
