@@ -434,5 +434,13 @@ TEST(TextList, DidYouMeanGuessesOnlyANearUniqueName) {
   EXPECT_EQ(did_you_mean("x", {}), "");
 }
 
+TEST(TextList, SplitUndoesJoin) {
+  const std::vector<std::string> items = {"written by another build", "", "trained with a, b"};
+  EXPECT_EQ(split(join(items, "; "), "; "), items);
+  EXPECT_EQ(split("a, b"), (std::vector<std::string>{"a", "b"}));
+  EXPECT_TRUE(split("", "; ").empty());
+  EXPECT_EQ(split("one", "; "), std::vector<std::string>{"one"});
+}
+
 }  // namespace
 }  // namespace crpgs

@@ -14,6 +14,18 @@ inline std::string join(const std::vector<std::string>& items, const char* sep =
   return out;
 }
 
+/// The items of a list `join` wrote with `sep`; none for "".
+inline std::vector<std::string> split(const std::string& text, const std::string& sep = ", ") {
+  std::vector<std::string> out;
+  for (size_t begin = 0; !text.empty();) {
+    const size_t end = text.find(sep, begin);
+    out.push_back(text.substr(begin, end - begin));
+    if (end == std::string::npos) break;
+    begin = end + sep.size();
+  }
+  return out;
+}
+
 /// Edits (insert, delete, substitute, swap two neighbours) that turn `a` into `b`.
 inline size_t edit_distance(const std::string& a, const std::string& b) {
   std::vector<std::vector<size_t>> d(a.size() + 1, std::vector<size_t>(b.size() + 1));

@@ -17,6 +17,7 @@
 #include <random>
 #include <sstream>
 
+#include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
 #include "crpgs/hashing.h"
@@ -369,11 +370,15 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     gen_.set_state(rng);
     replay_salt_ = replay_salt;
     if (!rollback) {  // a roll-back returns to a state of this process: same origin
-      origin_ = ar.try_read("origin", origin_text) ? tensor_text(origin_text) : "";
-      // A difference already in the history (another build again) is not repeated.
-      for (const std::string& d : differences_from(build_id, exec))
-        if (("; " + origin_ + "; ").find("; " + d + "; ") == std::string::npos)
-          origin_ += (origin_.empty() ? "" : "; ") + d;
+      // The history names each difference once (another build again), also where a build
+      // before 4fa15cd had written one twice.
+      std::vector<std::string> history =
+          split(ar.try_read("origin", origin_text) ? tensor_text(origin_text) : "", "; ");
+      for (const std::string& d : differences_from(build_id, exec)) history.push_back(d);
+      std::vector<std::string> once;
+      for (std::string& d : history)
+        if (std::find(once.begin(), once.end(), d) == once.end()) once.push_back(std::move(d));
+      origin_ = join(once, "; ");
       state_build_id_ = std::move(build_id);
       state_config_hash_ = std::move(config_hash);
       state_execution_ = std::move(exec);
