@@ -112,10 +112,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
                     ? ""
                     : " (written under another config: training goes on with this one, "
                       "config.yaml)");
-  const char *omp_wait = std::getenv("OMP_WAIT_POLICY"),
-             *blas_timeout = std::getenv("OPENBLAS_THREAD_TIMEOUT");
-  std::printf("idle compute threads: OMP_WAIT_POLICY=%s, OPENBLAS_THREAD_TIMEOUT=%s\n",
-              omp_wait ? omp_wait : "(unset)", blas_timeout ? blas_timeout : "(unset)");
+  std::printf("idle compute threads: %s\n", idle_thread_settings().c_str());
   std::printf("BLAS kernels: %s\n", blas_kernels_explained().c_str());
 
   TrainControl control;

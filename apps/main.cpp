@@ -1,6 +1,5 @@
 /// @file main.cpp
 /// @brief The `crpgs` command-line tool.
-#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -17,32 +16,14 @@
 
 namespace {
 
-// libgomp and OpenBLAS each keep their idle threads spinning, and read how long when they load,
-// before main(). With both pools spinning on 2 cores each steals the other's core: fern's steady
-// phase ran 1.2x faster with idle threads that sleep (bench/results/train_fern.md). The commands
-// that compute therefore restart once with that setting, unless the user chose one.
-void restart_with_idle_threads_that_sleep(int argc, char** argv) {
+// The commands that compute restart once with the environment they run best under
+// (bench/results/train_fern.md: idle threads that sleep, OpenBLAS kernels as wide as the CPU).
+void restart_for_compute_commands(int argc, char** argv) {
   static const char* const kComputeCommands[] = {"train",  "eval",   "demo",  "encode",
                                                  "decode", "render", "export"};
-  bool compute = false;
-  for (int i = 1; i < argc && !compute; ++i)
-    for (const char* c : kComputeCommands) compute = compute || std::strcmp(argv[i], c) == 0;
-  if (!compute) return;
-  bool changed = false;
-  for (const auto& [name, value] :
-       {std::pair{"OMP_WAIT_POLICY", "PASSIVE"}, std::pair{"OPENBLAS_THREAD_TIMEOUT", "4"}})
-    if (!std::getenv(name)) changed = setenv(name, value, 0) == 0 || changed;
-  // OpenBLAS also picks its kernels when it loads, and on a CPU newer than itself it falls back
-  // to SSE3 ones. The restarted process says what OpenBLAS had picked (cmd_train.cpp).
-  if (!std::getenv("OPENBLAS_CORETYPE")) {
-    const std::string picked = crpgs::openblas_core();
-    const std::string wider = crpgs::wider_openblas_core(picked, crpgs::cpu_vector_level());
-    if (!wider.empty() && setenv("OPENBLAS_CORETYPE", wider.c_str(), 1) == 0) {
-      setenv(crpgs::kOpenBlasPickedVariable, picked.c_str(), 1);
-      changed = true;
-    }
-  }
-  if (changed) execv("/proc/self/exe", argv);  // if it fails, run on as we are
+  for (int i = 1; i < argc; ++i)
+    for (const char* c : kComputeCommands)
+      if (std::strcmp(argv[i], c) == 0) return crpgs::restart_with_compute_environment(argv);
 }
 
 /// After a parse error: names the command or long option that does not exist and the nearest
@@ -87,7 +68,7 @@ void explain_unknown_names(const CLI::App& app, int argc, char** argv) {
 
 int main(int argc, char** argv) {
   using namespace crpgs::cli;
-  restart_with_idle_threads_that_sleep(argc, argv);
+  restart_for_compute_commands(argc, argv);
   crpgs::take_handed_over_lock();            // before any thread starts: it edits the environment
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // logs show progress lines as they happen
   CLI::App app{

@@ -82,4 +82,4 @@ BENCHMARK(BM_TableBits)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealT
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// main(): bench/main/bench_main.cpp

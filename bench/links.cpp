@@ -163,4 +163,4 @@ BENCHMARK(BM_DistanceMatching)
     ->Iterations(3)
     ->UseRealTime();
 
-BENCHMARK_MAIN();
+// main(): bench/main/bench_main.cpp

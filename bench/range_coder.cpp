@@ -129,4 +129,4 @@ BENCHMARK(BM_BernoulliDecode)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// main(): bench/main/bench_main.cpp

@@ -320,4 +320,4 @@ BENCHMARK(BM_ReferenceForwardBackward)
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// main(): bench/main/bench_main.cpp

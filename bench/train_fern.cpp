@@ -198,4 +198,4 @@ BENCHMARK(BM_MlpGemm)->DenseRange(0, 2)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 
-BENCHMARK_MAIN();
+// main(): bench/main/bench_main.cpp

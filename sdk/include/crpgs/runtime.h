@@ -43,6 +43,19 @@ std::string wider_openblas_core(const std::string& picked, int cpu_level);
 /// type OpenBLAS had picked, so that the log can tell this from a user's own OPENBLAS_CORETYPE.
 inline constexpr char kOpenBlasPickedVariable[] = "CRPGS_OPENBLAS_PICKED";
 
+/// "OMP_WAIT_POLICY=PASSIVE, OPENBLAS_THREAD_TIMEOUT=4": how idle compute threads wait, as the
+/// environment sets it ("(unset)" for a variable it lacks).
+std::string idle_thread_settings();
+
+/// Restarts this process once (execv of /proc/self/exe with `argv`) with the environment compute
+/// runs best under, where the user set none of it: idle threads that sleep (OMP_WAIT_POLICY,
+/// OPENBLAS_THREAD_TIMEOUT: libgomp's and OpenBLAS's spinning pools steal each other's cores) and
+/// OPENBLAS_CORETYPE when OpenBLAS picked kernels narrower than the CPU runs. Both libraries read
+/// these when they load, before main(), so only a restart applies them. Returns when nothing
+/// needed setting, under valgrind (whose child would escape the measurement) or when the restart
+/// failed; call it first in main(), before any thread starts.
+void restart_with_compute_environment(char** argv);
+
 /// "OpenBLAS SkylakeX (...)": blas_kernels() and why they are those kernels when
 /// OPENBLAS_CORETYPE chose them.
 std::string blas_kernels_explained();

@@ -6,6 +6,7 @@
 #include <elf.h>
 #include <link.h>
 #include <malloc.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cctype>
@@ -128,6 +129,35 @@ std::string wider_openblas_core(const std::string& picked, int cpu_level) {
   if (level < 0 || level >= cpu_level) return "";
   static const char* const kByLevel[] = {"", "Sandybridge", "Haswell", "SkylakeX"};
   return cpu_level >= 1 && cpu_level <= 3 ? kByLevel[cpu_level] : "";
+}
+
+std::string idle_thread_settings() {
+  std::string out;
+  for (const char* name : {"OMP_WAIT_POLICY", "OPENBLAS_THREAD_TIMEOUT"}) {
+    const char* value = std::getenv(name);
+    out += (out.empty() ? "" : ", ") + std::string(name) + "=" + (value ? value : "(unset)");
+  }
+  return out;
+}
+
+void restart_with_compute_environment(char** argv) {
+  // Under valgrind the restarted process would run natively (--trace-children=no), outside the
+  // measurement; valgrind's own CPU has no AVX-512 for wider kernels anyway.
+  if (const char* preload = std::getenv("LD_PRELOAD"); preload && std::strstr(preload, "vgpreload"))
+    return;
+  bool changed = false;
+  for (const auto& [name, value] :
+       {std::pair{"OMP_WAIT_POLICY", "PASSIVE"}, std::pair{"OPENBLAS_THREAD_TIMEOUT", "4"}})
+    if (!std::getenv(name)) changed = setenv(name, value, 0) == 0 || changed;
+  if (!std::getenv("OPENBLAS_CORETYPE")) {
+    const std::string picked = openblas_core();
+    const std::string wider = wider_openblas_core(picked, cpu_vector_level());
+    if (!wider.empty() && setenv("OPENBLAS_CORETYPE", wider.c_str(), 1) == 0) {
+      setenv(kOpenBlasPickedVariable, picked.c_str(), 1);  // for blas_kernels_explained()
+      changed = true;
+    }
+  }
+  if (changed) execv("/proc/self/exe", argv);  // if it fails, run on as we are
 }
 
 void keep_freed_memory_in_heap() {
