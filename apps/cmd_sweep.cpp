@@ -2,13 +2,16 @@
 /// @brief `crpgs sweep`: run a sweep file's grid of configs x overrides x datasets, locally with
 /// N workers or as a Slurm job array.
 #include <atomic>
+#include <cmath>
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 
 #include "cli_common.h"
+#include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
@@ -45,25 +48,101 @@ std::string file_tail(const std::string& path, std::streamoff bytes = 16384) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
+/// An unfinished run for the sweep's time left: its group ("fern/hac": runs of one method on one
+/// scene train at one rate) and its iterations left.
+struct UnfinishedRun {
+  std::string group;
+  double iterations = 0;  ///< NaN: unknown
+  bool running = false;
+};
+
+/// "left: 112830 iterations, about 15h40m with 2 workers at the rates last measured (fern/crpgs
+/// 0.73 it/s, fern/hac 1.10 it/s)". A group no run of which measured a rate takes the mean of the
+/// others'. A run without a log or a config that resolves has no schedule to count: it is named
+/// instead.
+void print_time_left(const std::vector<UnfinishedRun>& left,
+                     const std::map<std::string, std::vector<double>>& rates, int workers) {
+  double iterations = 0, mean = 0;
+  int unknown = 0;
+  std::vector<std::string> measured;
+  for (const auto& [group, r] : rates) {
+    mean += r.front() / double(rates.size());
+    measured.push_back(group + " " + format_rate(r.front()) + " it/s");
+  }
+  std::vector<ex::RunLeft> order;  // the running runs first: they hold their workers
+  std::set<std::string> guessed;
+  for (bool running : {true, false})
+    for (const UnfinishedRun& l : left) {
+      if (l.running != running) continue;
+      if (std::isnan(l.iterations)) ++unknown;
+      if (!(l.iterations > 0)) continue;
+      iterations += l.iterations;
+      const auto r = rates.find(l.group);
+      if (r == rates.end()) guessed.insert(l.group);
+      order.push_back({l.iterations, r == rates.end() ? mean : r->second.front()});
+    }
+  if (order.empty() && unknown == 0) return;
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "left: %.0f iterations", iterations);
+  std::string line = buf;
+  if (unknown > 0)
+    line += " and " + std::to_string(unknown) +
+            (unknown == 1 ? " run whose config does not resolve"
+                          : " runs whose configs do not resolve");
+  if (rates.empty()) {
+    line += "; no run has measured a rate yet";
+  } else {
+    line += ", about " + format_duration(ex::sweep_time_left(order, workers)) + " with " +
+            std::to_string(workers) + (workers == 1 ? " worker" : " workers") +
+            " at the rates last measured (" + join(measured) + ")";
+    if (!guessed.empty())
+      line += "; " + join({guessed.begin(), guessed.end()}) + " at the mean of these";
+  }
+  std::printf("%s\n", line.c_str());
+}
+
 /// `crpgs sweep --status`: each run's state, its progress (from its log) or its result.
 int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun>& runs,
                        const std::string& runs_dir, const ComponentRegistry& registry) {
   std::vector<std::vector<std::string>> rows{{"run", "state", "progress", "result"}};
   int done = 0, running = 0, stopped = 0, waiting = 0;
   char buf[160];
-  // Shared prefixes: each run's key, and how many runs share each.
+  // Shared prefixes: each run's key, and how many runs share each. Each run's schedule, for
+  // the time left.
   const std::string prefix_dir = ex::sweep_prefix_dir(runs_dir);
   std::vector<std::string> keys(runs.size());
+  std::vector<std::optional<Schedule>> schedules(runs.size());
   std::map<std::string, int> sharing;
-  if (spec.share_prefix)
-    for (size_t i = 0; i < runs.size(); ++i)
-      if (auto cfg = ex::build_run_config(runs[i], &registry); cfg.ok())
-        if (keys[i] = shared_prefix_key(cfg.value()); !keys[i].empty()) ++sharing[keys[i]];
+  for (size_t i = 0; i < runs.size(); ++i) {
+    auto cfg = ex::build_run_config(runs[i], &registry);
+    if (!cfg.ok()) continue;
+    if (auto opt = train_options_from_config(cfg.value()); opt.ok()) schedules[i] = opt->schedule;
+    if (spec.share_prefix)
+      if (keys[i] = shared_prefix_key(cfg.value()); !keys[i].empty()) ++sharing[keys[i]];
+  }
   auto published = [&](const std::string& key) {
     std::error_code ec;
     return !key.empty() && fs::exists(shared_prefix_path(prefix_dir, key), ec);
   };
+  // What is left of each unfinished run, and the rates its group (e.g. fern/hac) measured.
+  std::vector<UnfinishedRun> left;
+  std::map<std::string, std::vector<double>> rates;  // running runs' first, then stopped ones'
+  // Prefixes that a started (running, stopped or finished) run computes or computed.
+  std::set<std::string> prefix_computed_by;
+  for (size_t i = 0; i < runs.size(); ++i)
+    if (!keys[i].empty() && sharing[keys[i]] > 1 &&
+        (ex::run_state(runs[i].dir) != ex::RunState::kPending ||
+         fs::exists(runs[i].dir + "/checkpoint.pt")))
+      prefix_computed_by.insert(keys[i]);
+  auto group_of = [](const std::string& id) { return id.substr(0, id.rfind('/')); };
   for (const auto& r : runs) {
+    const size_t i = size_t(&r - runs.data());
+    // From the log's last progress line, else the whole schedule; NaN when neither is known.
+    auto iterations_left = [&](const std::optional<ProgressLine>& p) {
+      return p              ? double(p->total - p->done)
+             : schedules[i] ? double(schedules[i]->iterations)
+                            : std::nan("");
+    };
     std::vector<std::string> row{
         "[" + std::to_string(r.index + 1) + "/" + std::to_string(runs.size()) + "] " + r.id, "", "",
         ""};
@@ -85,29 +164,41 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
       ++running;
       row[1] = "running (" + holder + ")";
       if (progress) {
-        std::snprintf(buf, sizeof buf, "%ld/%ld, %.1f it/s, ETA %s", progress->done,
-                      progress->total, progress->rate, progress->eta.c_str());
+        std::snprintf(buf, sizeof buf, "%ld/%ld, %s it/s, ETA %s", progress->done, progress->total,
+                      format_rate(progress->rate).c_str(), progress->eta.c_str());
         row[2] = buf;
+        rates[group_of(r.id)].insert(rates[group_of(r.id)].begin(), progress->rate);
       }
+      left.push_back({group_of(r.id), iterations_left(progress), true});
     } else if (fs::exists(r.dir + "/checkpoint.pt", ec)) {
       ++stopped;
       row[1] = "stopped (resumes from its checkpoint)";
       if (const std::string change = ex::config_change(r, &registry); !change.empty())
         row[1] = "stopped (resumes from its checkpoint under a changed config: " + change + ")";
-      if (progress)
+      if (progress) {
         row[2] =
             "last seen " + std::to_string(progress->done) + "/" + std::to_string(progress->total);
+        rates[group_of(r.id)].push_back(progress->rate);
+      }
+      left.push_back({group_of(r.id), iterations_left(progress)});
     } else {
       ++waiting;
       row[1] = "waiting";
-      if (published(keys[size_t(&r - runs.data())]))
-        row[1] += " (will start from its shared prefix)";
+      if (published(keys[i])) row[1] += " (will start from its shared prefix)";
+      // A run that shares a prefix trains from rate_start on, unless it is the one to compute it.
+      const bool from_prefix = published(keys[i]) ||
+                               (sharing[keys[i]] > 1 && !prefix_computed_by.insert(keys[i]).second);
+      left.push_back({group_of(r.id), schedules[i]
+                                          ? double(schedules[i]->iterations -
+                                                   (from_prefix ? schedules[i]->rate_start : 0))
+                                          : std::nan("")});
     }
     rows.push_back(std::move(row));
   }
   std::printf("sweep %s: %zu runs in %s: %d done, %d running, %d stopped, %d waiting\n",
               spec.name.c_str(), runs.size(), runs_dir.c_str(), done, running, stopped, waiting);
   print_table(rows);
+  print_time_left(left, rates, spec.workers);
   for (const auto& [key, n] : sharing) {
     if (n < 2) continue;  // nothing to share
     std::printf("shared prefix %s (%d runs): %s\n", key.c_str(), n,
@@ -264,7 +355,8 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
       ->check(CLI::Range(0, 1 << 30));
   cmd->add_flag("--status", a.status,
                 "show each run's state, progress (iteration, rate, ETA: from its log) or result, "
-                "and which waiting runs will start from a shared prefix; runs nothing");
+                "which waiting runs will start from a shared prefix, and the sweep's time left "
+                "at the rates the runs last measured; runs nothing");
   cmd->add_flag("--dry-run", a.dry_run,
                 "list what would run (with --slurm: print the sbatch script); run nothing");
   cmd->callback([&g] { throw CLI::RuntimeError(run_sweep_command(a, g)); });

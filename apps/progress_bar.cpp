@@ -22,6 +22,13 @@ std::string format_duration(double s) {
   return buf;
 }
 
+std::string format_rate(double per_second) {
+  char buf[64];
+  const double r = std::isfinite(per_second) ? per_second : 0;
+  std::snprintf(buf, sizeof buf, r < 10 ? "%.2f" : r < 100 ? "%.1f" : "%.0f", r);
+  return buf;
+}
+
 ProgressBar::ProgressBar(std::string label, long total, long already_done, FILE* out)
     : label_(std::move(label)),
       total_(std::max(1L, total)),
@@ -63,8 +70,9 @@ void ProgressBar::draw(long done, const std::string& extra, bool final) {
   const double eta = rate > 0 ? (total_ - done) / rate : NAN;
   const double frac = std::clamp(double(done) / total_, 0.0, 1.0);
   char stats[160];
-  std::snprintf(stats, sizeof stats, "%ld/%ld %.1f/s %s ETA %s", done, total_, rate,
-                format_duration(elapsed).c_str(), final ? "0s" : format_duration(eta).c_str());
+  std::snprintf(stats, sizeof stats, "%ld/%ld %s/s %s ETA %s", done, total_,
+                format_rate(rate).c_str(), format_duration(elapsed).c_str(),
+                final ? "0s" : format_duration(eta).c_str());
   if (tty_) {
     const int width = 28, fill = int(frac * width);
     std::string bar(size_t(fill), '#');

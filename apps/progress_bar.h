@@ -36,6 +36,10 @@ class ProgressBar {
 /// "1m23s", "4.2s".
 std::string format_duration(double seconds);
 
+/// "0.73", "12.3", "415": three significant digits at most, two below 10 (a sweep's ETA
+/// multiplies the rate by tens of thousands of iterations).
+std::string format_rate(double per_second);
+
 /// What one drawn bar says (read back from a log, e.g. by `crpgs sweep --status`).
 struct ProgressLine {
   std::string label;

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -545,11 +546,15 @@ TEST(Sweep, StatusShowsTheSharedPrefixes) {
   EXPECT_NE(out.find("shared prefix " + key + " (2 runs): not yet published"), std::string::npos)
       << out;
   EXPECT_EQ(out.find("will start from its shared prefix"), std::string::npos) << out;
+  // One of the two computes the prefix (30k iterations), the other trains from rate_start (20k).
+  EXPECT_NE(out.find("left: 50000 iterations; no run has measured a rate yet"), std::string::npos)
+      << out;
   fs::create_directories(dir + "/runs/prefixes");
   write_text(dir + "/runs/prefixes/" + key + ".pt", "x");
   out = status();
   EXPECT_NE(out.find("shared prefix " + key + " (2 runs): published"), std::string::npos) << out;
   EXPECT_NE(out.find("waiting (will start from its shared prefix)"), std::string::npos) << out;
+  EXPECT_NE(out.find("left: 40000 iterations;"), std::string::npos) << out;  // both from 10k
 #endif
 }
 
@@ -591,10 +596,29 @@ TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
       << out;
   EXPECT_NE(out.find("27.456 dB, 2563198 B, trained 5h12m"), std::string::npos) << out;
   EXPECT_NE(out.find("running (pid " + std::to_string(getpid())), std::string::npos) << out;
-  EXPECT_NE(out.find("13030/30000, 0.7 it/s, ETA 6h22m"), std::string::npos) << out;
+  EXPECT_NE(out.find("13030/30000, 0.70 it/s, ETA 6h22m"), std::string::npos) << out;
   EXPECT_NE(out.find("last seen 140/40000"), std::string::npos) << out;
+  // Left: 16,970 + 39,860, one worker at the running run's 0.7 it/s (the stopped one's 5.4 it/s
+  // is older): 81,186 s. The waiting run's schedule is unknown: its config (entropy.lambda for
+  // the default entropy model) does not resolve, and it has no log.
+  EXPECT_NE(out.find("left: 56830 iterations and 1 run whose config does not resolve, about "
+                     "22h33m with 1 worker at the rates last measured (default/a 0.70 it/s)"),
+            std::string::npos)
+      << out;
   EXPECT_FALSE(fs::exists(runs[3].dir + "/stdout.log"));  // nothing ran
 #endif
+}
+
+TEST(Sweep, TimeLeftStartsEachRunOnTheFirstFreeWorker) {
+  EXPECT_EQ(sweep_time_left({}, 2), 0.0);
+  // Two workers: 100 s on one; 50 s, then 60 iterations at 2/s (30 s) on the other.
+  const std::vector<RunLeft> runs = {{100, 1}, {50, 1}, {60, 2}};
+  EXPECT_DOUBLE_EQ(sweep_time_left(runs, 2), 100.0);
+  EXPECT_DOUBLE_EQ(sweep_time_left(runs, 1), 180.0);
+  EXPECT_DOUBLE_EQ(sweep_time_left({{100, 1}, {50, 1}, {120, 2}}, 2), 110.0);  // 50 + 60
+  EXPECT_DOUBLE_EQ(sweep_time_left(runs, 8), 100.0);
+  EXPECT_DOUBLE_EQ(sweep_time_left({{0, 0}, {10, 5}}, 1), 2.0);  // nothing left: no rate needed
+  EXPECT_TRUE(std::isnan(sweep_time_left({{10, 5}, {10, 0}}, 2)));
 }
 
 TEST(Sweep, SlurmScriptHasArrayAndResources) {

@@ -10,6 +10,7 @@
 #include <cctype>
 #include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -455,6 +456,17 @@ size_t next_run_to_start(const std::vector<PendingRun>& pending,
     if (p.prefix_key.empty() || p.has_checkpoint || published(p.prefix_key)) return i;
   }
   return 0;
+}
+
+double sweep_time_left(const std::vector<RunLeft>& left, int workers) {
+  std::vector<double> free_at(size_t(std::max(1, workers)), 0.0);  // when each worker is free
+  for (const RunLeft& r : left) {
+    if (r.iterations <= 0) continue;
+    if (!(r.rate > 0)) return std::nan("");
+    double& first = *std::min_element(free_at.begin(), free_at.end());
+    first += r.iterations / r.rate;
+  }
+  return *std::max_element(free_at.begin(), free_at.end());
 }
 
 StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const ExecOptions& opt) {

@@ -151,6 +151,17 @@ size_t next_run_to_start(const std::vector<PendingRun>& pending,
                          const std::vector<std::string>& running,
                          const std::function<bool(const std::string&)>& published);
 
+/// A run still to train, for sweep_time_left.
+struct RunLeft {
+  double iterations = 0;  ///< left to train
+  double rate = 0;        ///< iterations per second
+};
+
+/// Seconds until the runs left are trained, `workers` at a time, each started in the order of
+/// `left` as soon as a worker is free (the running ones first); NaN when a run with iterations
+/// left has no positive rate.
+double sweep_time_left(const std::vector<RunLeft>& left, int workers);
+
 struct SweepSummary {
   int total = 0, skipped = 0, succeeded = 0, failed = 0;
   int interrupted = 0;  ///< runs stopped by `stop`; the next sweep resumes them
