@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <numeric>
 #include <set>
 
 #include "cli_common.h"
@@ -61,13 +62,13 @@ struct UnfinishedRun {
 /// others'. A run without a log or a config that resolves has no schedule to count: it is named
 /// instead.
 void print_time_left(const std::vector<UnfinishedRun>& left,
-                     const std::map<std::string, std::vector<double>>& rates, int workers) {
+                     const std::map<std::string, double>& rates, int workers) {
   double iterations = 0, mean = 0;
   int unknown = 0;
   std::vector<std::string> measured;
   for (const auto& [group, r] : rates) {
-    mean += r.front() / double(rates.size());
-    measured.push_back(group + " " + format_rate(r.front()) + " it/s");
+    mean += r / double(rates.size());
+    measured.push_back(group + " " + format_rate(r) + " it/s");
   }
   std::vector<ex::RunLeft> order;  // the running runs first: they hold their workers
   std::set<std::string> guessed;
@@ -79,7 +80,7 @@ void print_time_left(const std::vector<UnfinishedRun>& left,
       iterations += l.iterations;
       const auto r = rates.find(l.group);
       if (r == rates.end()) guessed.insert(l.group);
-      order.push_back({l.iterations, r == rates.end() ? mean : r->second.front()});
+      order.push_back({l.iterations, r == rates.end() ? mean : r->second});
     }
   if (order.empty() && unknown == 0) return;
   char buf[96];
@@ -126,7 +127,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
   };
   // What is left of each unfinished run, and the rates its group (e.g. fern/hac) measured.
   std::vector<UnfinishedRun> left;
-  std::map<std::string, std::vector<double>> rates;  // running runs' first, then stopped ones'
+  std::map<std::string, std::vector<double>> running_rates, stopped_rates;
   // Prefixes that a started (running, stopped or finished) run computes or computed.
   std::set<std::string> prefix_computed_by;
   for (size_t i = 0; i < runs.size(); ++i)
@@ -167,7 +168,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
         std::snprintf(buf, sizeof buf, "%ld/%ld, %s it/s, ETA %s", progress->done, progress->total,
                       format_rate(progress->rate).c_str(), progress->eta.c_str());
         row[2] = buf;
-        rates[group_of(r.id)].insert(rates[group_of(r.id)].begin(), progress->rate);
+        running_rates[group_of(r.id)].push_back(progress->rate);
       }
       left.push_back({group_of(r.id), iterations_left(progress), true});
     } else if (fs::exists(r.dir + "/checkpoint.pt", ec)) {
@@ -178,7 +179,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
       if (progress) {
         row[2] =
             "last seen " + std::to_string(progress->done) + "/" + std::to_string(progress->total);
-        rates[group_of(r.id)].push_back(progress->rate);
+        stopped_rates[group_of(r.id)].push_back(progress->rate);
       }
       left.push_back({group_of(r.id), iterations_left(progress)});
     } else {
@@ -198,6 +199,12 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
   std::printf("sweep %s: %zu runs in %s: %d done, %d running, %d stopped, %d waiting\n",
               spec.name.c_str(), runs.size(), runs_dir.c_str(), done, running, stopped, waiting);
   print_table(rows);
+  // A group's rate: the mean of its running runs' (they run now, beside each other), else of
+  // its stopped runs'.
+  std::map<std::string, double> rates;
+  for (const auto* measured : {&stopped_rates, &running_rates})
+    for (const auto& [group, r] : *measured)
+      rates[group] = std::accumulate(r.begin(), r.end(), 0.0) / double(r.size());
   print_time_left(left, rates, spec.workers);
   for (const auto& [key, n] : sharing) {
     if (n < 2) continue;  // nothing to share
