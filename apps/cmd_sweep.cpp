@@ -130,10 +130,13 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
   std::map<std::string, std::vector<double>> running_rates, stopped_rates;
   // Prefixes that a started (running, stopped or finished) run computes or computed.
   std::set<std::string> prefix_computed_by;
+  auto shares_prefix = [&](size_t i) {
+    const auto it = sharing.find(keys[i]);
+    return it != sharing.end() && it->second > 1;
+  };
   for (size_t i = 0; i < runs.size(); ++i)
-    if (!keys[i].empty() && sharing[keys[i]] > 1 &&
-        (ex::run_state(runs[i].dir) != ex::RunState::kPending ||
-         fs::exists(runs[i].dir + "/checkpoint.pt")))
+    if (shares_prefix(i) && (ex::run_state(runs[i].dir) != ex::RunState::kPending ||
+                             fs::exists(runs[i].dir + "/checkpoint.pt")))
       prefix_computed_by.insert(keys[i]);
   auto group_of = [](const std::string& id) { return id.substr(0, id.rfind('/')); };
   for (const auto& r : runs) {
@@ -187,8 +190,8 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
       row[1] = "waiting";
       if (published(keys[i])) row[1] += " (will start from its shared prefix)";
       // A run that shares a prefix trains from rate_start on, unless it is the one to compute it.
-      const bool from_prefix = published(keys[i]) ||
-                               (sharing[keys[i]] > 1 && !prefix_computed_by.insert(keys[i]).second);
+      const bool from_prefix =
+          published(keys[i]) || (shares_prefix(i) && !prefix_computed_by.insert(keys[i]).second);
       left.push_back({group_of(r.id), schedules[i]
                                           ? double(schedules[i]->iterations -
                                                    (from_prefix ? schedules[i]->rate_start : 0))

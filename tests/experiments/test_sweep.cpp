@@ -599,8 +599,8 @@ TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
   EXPECT_NE(out.find("13030/30000, 0.70 it/s, ETA 6h22m"), std::string::npos) << out;
   EXPECT_NE(out.find("last seen 140/40000"), std::string::npos) << out;
   // Left: 16,970 + 39,860, one worker at the running run's 0.7 it/s (the stopped one's 5.4 it/s
-  // is older, and the running runs' rates win): 81,186 s. The waiting run's schedule is unknown: its config (entropy.lambda for
-  // the default entropy model) does not resolve, and it has no log.
+  // is older, and the running runs' rates win): 81,186 s. The waiting run's schedule is unknown:
+  // its config (entropy.lambda for the default entropy model) does not resolve, and it has no log.
   EXPECT_NE(out.find("left: 56830 iterations and 1 run whose config does not resolve, about "
                      "22h33m with 1 worker at the rates last measured (default/a 0.70 it/s)"),
             std::string::npos)

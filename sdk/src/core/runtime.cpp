@@ -16,6 +16,7 @@
 #include <map>
 #include <string>
 #include <thread>
+#include <utility>
 
 #include <ATen/Parallel.h>
 
@@ -131,9 +132,16 @@ std::string wider_openblas_core(const std::string& picked, int cpu_level) {
   return cpu_level >= 1 && cpu_level <= 3 ? kByLevel[cpu_level] : "";
 }
 
+namespace {
+// Idle threads that sleep: libgomp's and OpenBLAS's settings, read when they load.
+constexpr std::pair<const char*, const char*> kIdleThreadsThatSleep[] = {
+    {"OMP_WAIT_POLICY", "PASSIVE"}, {"OPENBLAS_THREAD_TIMEOUT", "4"}};
+}  // namespace
+
 std::string idle_thread_settings() {
   std::string out;
-  for (const char* name : {"OMP_WAIT_POLICY", "OPENBLAS_THREAD_TIMEOUT"}) {
+  for (const auto& setting : kIdleThreadsThatSleep) {
+    const char* name = setting.first;
     const char* value = std::getenv(name);
     out += (out.empty() ? "" : ", ") + std::string(name) + "=" + (value ? value : "(unset)");
   }
@@ -146,8 +154,7 @@ void restart_with_compute_environment(char** argv) {
   if (const char* preload = std::getenv("LD_PRELOAD"); preload && std::strstr(preload, "vgpreload"))
     return;
   bool changed = false;
-  for (const auto& [name, value] :
-       {std::pair{"OMP_WAIT_POLICY", "PASSIVE"}, std::pair{"OPENBLAS_THREAD_TIMEOUT", "4"}})
+  for (const auto& [name, value] : kIdleThreadsThatSleep)
     if (!std::getenv(name)) changed = setenv(name, value, 0) == 0 || changed;
   if (!std::getenv("OPENBLAS_CORETYPE")) {
     const std::string picked = openblas_core();
