@@ -13,6 +13,7 @@
 #include "crpgs/image.h"
 #include "crpgs/metrics.h"
 #include "crpgs/ply.h"
+#include "progress_bar.h"
 
 namespace crpgs::cli {
 
@@ -59,7 +60,7 @@ StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterize
 
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
                    int degree, int directions, double view_weight, const std::string& opacity_from,
-                   int threads) {
+                   int refine, int threads) {
   if (Status st = check_output_is_not_input(out, source); !st.ok()) return report_error(st);
   ComponentRegistry r = load_registry(g);
   auto src = load_model_source(g, r, source, resolve_threads(threads));
@@ -82,14 +83,39 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   const auto t0 = std::chrono::steady_clock::now();
   auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
   if (!baked.ok()) return report_error(baked.status());
-  Status st = write_ply(out, baked.value());
-  if (!st.ok()) return report_error(st);
   const double bake_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (refine > 0) {
+    if (ds.train.empty())
+      return report_error(Status(StatusCode::kInvalidArgument,
+                                 "--refine needs the training views, and the dataset has none"));
+    RefineOptions ro;
+    ro.iterations = refine;
+    const auto t1 = std::chrono::steady_clock::now();
+    ProgressBar bar("refine", refine);
+    auto rep =
+        refine_gaussians(baked.value(), src->setup->rasterizer(), ds.train,
+                         model.options().effects.background, ro, [&bar](int it, double loss) {
+                           char extra[32];
+                           std::snprintf(extra, sizeof extra, "loss %.4f", loss);
+                           bar.update(it, extra);
+                         });
+    bar.finish();
+    if (!rep.ok()) return report_error(rep.status());
+    std::printf(
+        "refined on %zu training views: %d iterations, loss %.4f -> %.4f (mean over a pass of "
+        "the views)%s, %.1f s\n",
+        ds.train.size(), rep->iterations, rep->first_loss, rep->last_loss,
+        rep->skipped > 0 ? (", " + std::to_string(rep->skipped) + " non-finite skipped").c_str()
+                         : "",
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
+  }
+  Status st = write_ply(out, baked.value());
+  if (!st.ok()) return report_error(st);
   std::error_code ec;
   std::printf(
       "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), opacity from "
-      "the %s, %llu bytes, %.2f s\n",
+      "the %s, %llu bytes, baked in %.2f s\n",
       out.c_str(), baked->size(), degree, directions, opt.view_weight,
       opt.opacity_over_views ? "views" : "representative view",
       static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
@@ -154,7 +180,7 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
 
 void add_export_commands(CLI::App& app, GlobalOptions& g) {
   static std::string source, out, ply, config, png_dir;
-  static int degree = 3, directions = 96, threads = 0;
+  static int degree = 3, directions = 96, refine = 0, threads = 0;
   static double view_weight = BakeOptions{}.view_weight;
   static std::string opacity_from = BakeOptions{}.opacity_over_views ? "views" : "representative";
   auto* ex = app.add_subcommand(
@@ -175,11 +201,15 @@ void add_export_commands(CLI::App& app, GlobalOptions& g) {
                  "opacity of the exported Gaussians: 'views' (the mean over the training "
                  "cameras' views) or 'representative' (the anchor's mean view only)")
       ->check(CLI::IsMember({"views", "representative"}));
+  ex->add_option("--refine", refine,
+                 "after baking, optimise the exported Gaussians on the training views for this "
+                 "many iterations (3DGS's loss and learning rates, no densification)")
+      ->check(CLI::Range(0, 1000000));
   add_threads_option(ex, threads);
   ex->add_option("--set", g.sets, "override a key of the model's config (e.g. dataset.path=DIR)");
   ex->callback([&g] {
-    throw CLI::RuntimeError(
-        export_command(g, source, out, degree, directions, view_weight, opacity_from, threads));
+    throw CLI::RuntimeError(export_command(g, source, out, degree, directions, view_weight,
+                                           opacity_from, refine, threads));
   });
 
   auto* im = app.add_subcommand(

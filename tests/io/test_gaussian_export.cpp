@@ -11,6 +11,7 @@
 #include "crpgs/components.h"
 #include "crpgs/gaussian_export.h"
 #include "crpgs/scene_generator.h"
+#include "crpgs/trainer.h"
 #include "io/io_test_util.h"
 #include "raster/cpu_rasterizer.h"
 
@@ -273,6 +274,113 @@ TEST(GaussianExport, RefusesBadOptions) {
   b.camera_centers.clear();
   EXPECT_FALSE(bake_gaussians(*m, b).ok());
   for (double w : {-0.1, 1.0, std::nan("")}) EXPECT_FALSE(bake_gaussians(*m, s.bake(1, w)).ok());
+}
+
+// Mean L1 of the .ply Gaussians' renders against the views' photos.
+double mean_l1(const PlyGaussians& g, Rasterizer& r, const std::vector<View>& views) {
+  torch::NoGradGuard ng;
+  double sum = 0;
+  for (const auto& v : views)
+    sum += (r.render(ply_to_batch(g, v.camera), v.camera, RenderSettings{}).image -
+            image_to_tensor(v.image))
+               .abs()
+               .mean()
+               .item<double>();
+  return sum / double(views.size());
+}
+
+StatusOr<PlyGaussians> baked_untrained(const Scene& s, int degree) {
+  auto m = s.model(SceneEffects{});
+  torch::NoGradGuard ng;
+  return bake_gaussians(*m, s.bake(degree));
+}
+
+TEST(GaussianExport, RefineFitsTheTrainingViewsAndKeepsTheGaussians) {
+  // An untrained model's bake is far from the photos: refining must bring the renders of the
+  // training views, and of the held-out ones the scene shares, closer to them.
+  Scene s;
+  auto g = baked_untrained(s, 1);
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  const PlyGaussians before = g.value();
+  RefineOptions o;
+  o.iterations = 100;
+  int calls = 0;
+  auto rep = refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o,
+                              [&calls](int it, double) { EXPECT_EQ(it, ++calls); });
+  ASSERT_TRUE(rep.ok()) << rep.status().message();
+  EXPECT_EQ(rep->iterations, 100);
+  EXPECT_EQ(calls, 100);
+  EXPECT_EQ(rep->skipped, 0);
+  EXPECT_LT(rep->last_loss, 0.8 * rep->first_loss);
+  ASSERT_TRUE(g->check().ok());
+  EXPECT_EQ(g->size(), before.size());
+  EXPECT_EQ(g->sh_degree, 1);
+  const double train_before = mean_l1(before, *s.raster, s.ds.train);
+  const double train_after = mean_l1(*g, *s.raster, s.ds.train);
+  EXPECT_LT(train_after, 0.75 * train_before);
+  std::printf("training views' mean L1: %.4f -> %.4f\n", train_before, train_after);
+  EXPECT_LT(mean_l1(*g, *s.raster, s.ds.test), mean_l1(before, *s.raster, s.ds.test));
+  // Every parameter group moved.
+  EXPECT_NE(g->means, before.means);
+  EXPECT_NE(g->sh_dc, before.sh_dc);
+  EXPECT_NE(g->sh_rest, before.sh_rest);
+  EXPECT_NE(g->opacity, before.opacity);
+  EXPECT_NE(g->log_scales, before.log_scales);
+  EXPECT_NE(g->rotations, before.rotations);
+}
+
+TEST(GaussianExport, RefineIsDeterministicAndLeavesUnlearntParametersExact) {
+  Scene s;
+  auto g = baked_untrained(s, 3);
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  RefineOptions o;
+  o.iterations = 5;
+  PlyGaussians a = g.value(), b = g.value();
+  ASSERT_TRUE(refine_gaussians(a, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  ASSERT_TRUE(refine_gaussians(b, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  EXPECT_EQ(a.means, b.means);
+  EXPECT_EQ(a.sh_rest, b.sh_rest);
+  EXPECT_EQ(a.opacity, b.opacity);
+  // With every learning rate 0 the parameters come back bit-exact: the tensors' layout (f_rest
+  // channel-major) round-trips.
+  o.means_lr = o.means_lr_final = 0;
+  o.sh_dc_lr = o.sh_rest_lr = o.opacity_lr = o.scaling_lr = o.rotation_lr = 0;
+  PlyGaussians c = g.value();
+  auto rep = refine_gaussians(c, *s.raster, s.ds.train, {0, 0, 0}, o);
+  ASSERT_TRUE(rep.ok()) << rep.status().message();
+  EXPECT_EQ(rep->iterations, 5);
+  EXPECT_EQ(c.means, g->means);
+  EXPECT_EQ(c.sh_dc, g->sh_dc);
+  EXPECT_EQ(c.sh_rest, g->sh_rest);
+  EXPECT_EQ(c.opacity, g->opacity);
+  EXPECT_EQ(c.log_scales, g->log_scales);
+  EXPECT_EQ(c.rotations, g->rotations);
+}
+
+TEST(GaussianExport, RefineRefusesWhatItCannotDo) {
+  Scene s;
+  auto g = baked_untrained(s, 0);
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  const PlyGaussians before = g.value();
+  RefineOptions o;
+  o.iterations = 3;
+  auto none = refine_gaussians(*g, *s.raster, {}, {0, 0, 0}, o);
+  ASSERT_FALSE(none.ok());
+  EXPECT_NE(none.status().message().find("no training views"), std::string::npos);
+  o.iterations = -1;
+  EXPECT_FALSE(refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  o.iterations = 3;
+  o.opacity_lr = -1;
+  EXPECT_FALSE(refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  o.opacity_lr = RefineOptions{}.opacity_lr;
+  o.means_lr_final = 0;  // a log-linear decay to 0
+  EXPECT_FALSE(refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  o.iterations = 0;  // nothing to do, nothing changes
+  auto zero = refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o);
+  ASSERT_TRUE(zero.ok());
+  EXPECT_EQ(zero->iterations, 0);
+  EXPECT_EQ(g->means, before.means);
+  EXPECT_EQ(g->opacity, before.opacity);
 }
 
 }  // namespace

@@ -24,10 +24,13 @@
 #include <torch/types.h>
 
 #include <Eigen/Core>
+#include <array>
+#include <functional>
 #include <vector>
 
 #include "crpgs/anchor_model.h"
 #include "crpgs/camera.h"
+#include "crpgs/dataset.h"
 #include "crpgs/ply.h"
 #include "crpgs/rasterizer.h"
 
@@ -74,5 +77,38 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
 /// The activated Gaussians of a .ply as seen from `camera` (colours from SH at the direction
 /// from the camera centre to each Gaussian; opacity sigmoid, scales exp, rotation as stored).
 GaussianBatch ply_to_batch(const PlyGaussians& g, const Camera& camera);
+
+/// Fine-tuning of baked Gaussians on the training views (`crpgs export --refine`). The bake
+/// fixes opacity, scale and rotation at one view per anchor, which a standard 3DGS file cannot
+/// make depend on the view (export_fern.md); optimising the file's own parameters against the
+/// photos, as 3DGS trains them, wins part of that back. No densification or pruning: the
+/// Gaussians stay those the bake made.
+struct RefineOptions {
+  int iterations = 0;  ///< 0: nothing changes
+  double lambda_dssim = 0.2;
+  /// 3DGS's learning rates (train.py defaults). The means' is multiplied by the cameras' extent
+  /// (1.1 x the largest distance of a camera centre from their mean, as 3DGS) and decays
+  /// log-linearly from `means_lr` to `means_lr_final` over the iterations: a baked scene is
+  /// already converged, so it starts a tenth of the way down 3DGS's schedule (1.6e-4 -> 1.6e-6).
+  double means_lr = 1.6e-5, means_lr_final = 1.6e-6;
+  double sh_dc_lr = 2.5e-3, sh_rest_lr = 2.5e-3 / 20;
+  double opacity_lr = 0.05, scaling_lr = 5e-3, rotation_lr = 1e-3;
+  uint64_t seed = 0;  ///< order of the views (a fresh permutation per pass)
+};
+
+struct RefineReport {
+  int iterations = 0;
+  int skipped = 0;  ///< iterations whose loss or gradients were not finite (no update)
+  double first_loss = 0, last_loss = 0;  ///< mean loss over the first and last pass of views
+};
+
+/// Optimises `g` in place on `views` (camera + photo each; at least one when iterations > 0) with
+/// loss (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM), the trainer's. The means get the
+/// rasterizer's gradient only, not the SH colour's through the view direction. `on_iteration`
+/// (optional) is called after each iteration with its 1-based number and loss.
+StatusOr<RefineReport> refine_gaussians(
+    PlyGaussians& g, Rasterizer& rasterizer, const std::vector<View>& views,
+    const std::array<float, 3>& background, const RefineOptions& options,
+    const std::function<void(int iteration, double loss)>& on_iteration = {});
 
 }  // namespace crpgs

@@ -2,11 +2,16 @@
 /// @brief Anchor model -> 3DGS Gaussians with fitted SH, and .ply Gaussians -> GaussianBatch.
 #include "crpgs/gaussian_export.h"
 
+#include <algorithm>
 #include <cmath>
+#include <numeric>
+#include <random>
 #include <stdexcept>
 
 #include <torch/nn/functional/normalization.h>
 
+#include "crpgs/trainer.h"
+#include "model/adam.h"
 #include "model/chunked_mlp.h"
 
 namespace crpgs {
@@ -34,6 +39,64 @@ torch::Tensor mlp(const std::map<std::string, torch::Tensor>& t, const std::stri
                   const torch::Tensor& x) {
   return chunked_mlp(x, t.at(name + ".w1"), t.at(name + ".b1"), t.at(name + ".w2"),
                      t.at(name + ".b2"));
+}
+
+/// A .ply's Gaussians as tensors, before activation (what refine_gaussians optimises).
+struct PlyTensors {
+  torch::Tensor means;       ///< [N, 3]
+  torch::Tensor log_scales;  ///< [N, 3]
+  torch::Tensor rotations;   ///< [N, 4]
+  torch::Tensor opacity;     ///< [N] logit
+  torch::Tensor sh_dc;       ///< [N, 1, 3]
+  torch::Tensor sh_rest;     ///< [N, B-1, 3]
+};
+
+PlyTensors ply_tensors(const PlyGaussians& g) {
+  const int64_t n = int64_t(g.size());
+  const int nb = sh_coeff_count(g.sh_degree);
+  auto tensor = [](const std::vector<float>& v, std::vector<int64_t> shape) {
+    return torch::from_blob(const_cast<float*>(v.data()), shape, torch::kFloat).clone();
+  };
+  PlyTensors t;
+  t.means = tensor(g.means, {n, 3});
+  t.log_scales = tensor(g.log_scales, {n, 3});
+  t.rotations = tensor(g.rotations, {n, 4});
+  t.opacity = tensor(g.opacity, {n});
+  t.sh_dc = tensor(g.sh_dc, {n, 1, 3});
+  t.sh_rest = tensor(g.sh_rest, {n, 3, nb - 1}).permute({0, 2, 1}).contiguous();
+  return t;
+}
+
+PlyGaussians to_ply(const PlyTensors& t, int degree) {
+  auto to_vec = [](const torch::Tensor& x) {
+    auto c = x.detach().to(torch::kFloat).contiguous();
+    return std::vector<float>(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
+  };
+  PlyGaussians out;
+  out.sh_degree = degree;
+  out.means = to_vec(t.means);
+  out.sh_dc = to_vec(t.sh_dc);
+  out.sh_rest = to_vec(t.sh_rest.permute({0, 2, 1}));  // channel-major: [N, 3, B-1]
+  out.opacity = to_vec(t.opacity);
+  out.log_scales = to_vec(t.log_scales);
+  out.rotations = to_vec(t.rotations);
+  return out;
+}
+
+/// The Gaussians as `camera` sees them: colour from the SH at the direction from its centre.
+GaussianBatch activate(const PlyTensors& t, int degree, const Camera& camera) {
+  GaussianBatch b;
+  b.means = t.means;
+  b.scales = torch::exp(t.log_scales);
+  b.rotations = t.rotations;
+  b.opacities = torch::sigmoid(t.opacity);
+  const Eigen::Vector3d c = camera.center();
+  auto d = t.means.detach() - torch::tensor({float(c[0]), float(c[1]), float(c[2])});
+  d = d / d.norm(2, 1, true).clamp_min(1e-12);
+  auto basis = sh_basis_matrix(d, degree);                                   // [N, B]
+  auto coeffs = degree > 0 ? torch::cat({t.sh_dc, t.sh_rest}, 1) : t.sh_dc;  // [N, B, 3]
+  b.colors = ((basis.unsqueeze(2) * coeffs).sum(1) + 0.5f).clamp_min(0);     // [N, 3]
+  return b;
 }
 
 }  // namespace
@@ -233,41 +296,121 @@ StatusOr<PlyGaussians> bake_gaussians(AnchorModel& model, const BakeOptions& opt
     g0 = g1;
   }
 
-  PlyGaussians out;
-  out.sh_degree = degree;
-  auto to_vec = [](const torch::Tensor& t) {
-    auto c = t.to(torch::kFloat).contiguous();
-    return std::vector<float>(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
-  };
-  out.means = to_vec(means);
-  out.sh_dc = to_vec(coeffs.select(1, 0));                               // [G, 3]
-  out.sh_rest = to_vec(coeffs.narrow(1, 1, nb - 1).permute({0, 2, 1}));  // [G, 3, B-1]
-  out.opacity = to_vec(torch::log(op / (1 - op)));
-  out.log_scales = to_vec(torch::log(scales.clamp_min(1e-30)));
-  out.rotations = to_vec(rot);
-  return out;
+  PlyTensors t;
+  t.means = means;
+  t.log_scales = torch::log(scales.clamp_min(1e-30));
+  t.rotations = rot;
+  t.opacity = torch::log(op / (1 - op));
+  t.sh_dc = coeffs.narrow(1, 0, 1);
+  t.sh_rest = coeffs.narrow(1, 1, nb - 1);
+  return to_ply(t, degree);
 }
 
 GaussianBatch ply_to_batch(const PlyGaussians& g, const Camera& camera) {
-  const int64_t n = int64_t(g.size());
-  const int nb = sh_coeff_count(g.sh_degree);
-  auto tensor = [](const std::vector<float>& v, std::vector<int64_t> shape) {
-    return torch::from_blob(const_cast<float*>(v.data()), shape, torch::kFloat).clone();
+  return activate(ply_tensors(g), g.sh_degree, camera);
+}
+
+StatusOr<RefineReport> refine_gaussians(PlyGaussians& g, Rasterizer& rasterizer,
+                                        const std::vector<View>& views,
+                                        const std::array<float, 3>& background,
+                                        const RefineOptions& o,
+                                        const std::function<void(int, double)>& on_iteration) {
+  RefineReport report;
+  if (o.iterations < 0)
+    return Status(StatusCode::kInvalidArgument, "refine: the iterations must be >= 0");
+  if (o.iterations == 0 || g.size() == 0) return report;
+  if (views.empty())
+    return Status(StatusCode::kInvalidArgument,
+                  "refine: no training views (the dataset has only test views)");
+  for (double lr : {o.means_lr, o.means_lr_final, o.sh_dc_lr, o.sh_rest_lr, o.opacity_lr,
+                    o.scaling_lr, o.rotation_lr})
+    if (!(lr >= 0 && std::isfinite(lr)))
+      return Status(StatusCode::kInvalidArgument, "refine: learning rates must be finite and >= 0");
+  if ((o.means_lr > 0) != (o.means_lr_final > 0))
+    return Status(StatusCode::kInvalidArgument,
+                  "refine: the means' learning rate decays log-linearly: its start and end must "
+                  "both be 0 or both be > 0");
+  CRPGS_RETURN_IF_ERROR(g.check());
+  PlyTensors t = ply_tensors(g);
+  // 3DGS's cameras_extent (getNerfppNorm): scales the means' learning rate to the scene.
+  Eigen::Vector3d mean_c = Eigen::Vector3d::Zero();
+  for (const auto& v : views) mean_c += v.camera.center();
+  mean_c /= double(views.size());
+  double radius = 0;
+  for (const auto& v : views) radius = std::max(radius, (v.camera.center() - mean_c).norm());
+  const double extent = radius > 0 ? 1.1 * radius : 1.0;  // one camera: no scale to take
+
+  struct Group {
+    torch::Tensor* param;
+    double lr;
+    torch::Tensor m = torch::zeros_like(*param), v = torch::zeros_like(*param);
+    int64_t step = 0;
   };
-  GaussianBatch b;
-  b.means = tensor(g.means, {n, 3});
-  b.scales = torch::exp(tensor(g.log_scales, {n, 3}));
-  b.rotations = tensor(g.rotations, {n, 4});
-  b.opacities = torch::sigmoid(tensor(g.opacity, {n}));
-  const Eigen::Vector3d c = camera.center();
-  auto d = b.means - torch::tensor({float(c[0]), float(c[1]), float(c[2])});
-  d = d / d.norm(2, 1, true).clamp_min(1e-12);
-  auto basis = sh_basis_matrix(d, g.sh_degree);  // [N, B]
-  auto coeffs = tensor(g.sh_dc, {n, 1, 3});      // [N, 1, 3]
-  if (nb > 1)
-    coeffs = torch::cat({coeffs, tensor(g.sh_rest, {n, 3, nb - 1}).permute({0, 2, 1})}, 1);
-  b.colors = ((basis.unsqueeze(2) * coeffs).sum(1) + 0.5f).clamp_min(0);  // [N, 3]
-  return b;
+  std::vector<Group> groups;  // the means' lr is set per iteration
+  for (auto [param, lr] : {std::pair{&t.means, 0.0},
+                           {&t.sh_dc, o.sh_dc_lr},
+                           {&t.sh_rest, o.sh_rest_lr},
+                           {&t.opacity, o.opacity_lr},
+                           {&t.log_scales, o.scaling_lr},
+                           {&t.rotations, o.rotation_lr}}) {
+    param->requires_grad_(true);
+    groups.push_back(Group{param, lr});
+  }
+  std::vector<torch::Tensor> photos;
+  for (const auto& v : views) photos.push_back(image_to_tensor(v.image));
+  RenderSettings settings;
+  settings.background = background;
+  std::mt19937_64 rng(o.seed);
+  std::vector<size_t> order(views.size());
+  std::iota(order.begin(), order.end(), size_t(0));
+  std::vector<double> losses;
+  const double log_lr0 = o.means_lr > 0 ? std::log(o.means_lr) : 0;
+  const double log_lr1 = o.means_lr > 0 ? std::log(o.means_lr_final) : 0;
+  for (int it = 1; it <= o.iterations; ++it) {
+    const size_t pos = size_t(it - 1) % views.size();
+    if (pos == 0) std::shuffle(order.begin(), order.end(), rng);
+    const View& view = views[order[pos]];
+    const torch::Tensor& photo = photos[order[pos]];
+    const double f = o.iterations > 1 ? double(it - 1) / double(o.iterations - 1) : 0.0;
+    groups[0].lr = o.means_lr > 0 ? extent * std::exp(log_lr0 * (1 - f) + log_lr1 * f) : 0.0;
+    auto image =
+        rasterizer.render(activate(t, g.sh_degree, view.camera), view.camera, settings).image;
+    auto loss = (1.0 - o.lambda_dssim) * (image - photo).abs().mean() +
+                o.lambda_dssim * (1.0 - tensor_ssim(image, photo));
+    const double value = loss.item<double>();
+    bool finite = std::isfinite(value);
+    if (finite) {
+      loss.backward();
+      for (auto& gr : groups)
+        if (gr.param->grad().defined() && !torch::isfinite(gr.param->grad()).all().item<bool>())
+          finite = false;
+    }
+    if (finite) {
+      torch::NoGradGuard no_grad;
+      for (auto& gr : groups) {
+        if (!gr.param->grad().defined()) continue;
+        adam_update(*gr.param, gr.param->grad(), gr.m, gr.v, gr.lr, ++gr.step);
+      }
+      losses.push_back(value);
+    } else {
+      ++report.skipped;  // a non-finite update would poison the Adam moments for good
+    }
+    for (auto& gr : groups)
+      if (gr.param->grad().defined()) gr.param->mutable_grad().reset();
+    report.iterations = it;
+    if (on_iteration) on_iteration(it, value);
+  }
+  const size_t pass = std::min(views.size(), losses.size());
+  if (pass > 0) {
+    report.first_loss = std::accumulate(losses.begin(), losses.begin() + long(pass), 0.0) / pass;
+    report.last_loss = std::accumulate(losses.end() - long(pass), losses.end(), 0.0) / pass;
+  }
+  torch::NoGradGuard no_grad;
+  for (auto& gr : groups) gr.param->requires_grad_(false);
+  PlyGaussians refined = to_ply(t, g.sh_degree);
+  refined.dropped_non_finite = g.dropped_non_finite;
+  g = std::move(refined);
+  return report;
 }
 
 }  // namespace crpgs

@@ -4,6 +4,7 @@
 #include "crpgs/anchor_model.h"
 
 #include "crpgs/links.h"
+#include "model/adam.h"
 #include "model/adam_kernel.h"
 #include "model/chunked_mlp.h"
 #include "model/sorted_gather.h"
@@ -1077,9 +1078,8 @@ double AnchorModel::learning_rate(const std::string& group) const {
   return 0;
 }
 
-namespace {
-// One Adam update (torch.optim.Adam, no weight decay) in a single parallel pass over the
-// elements: the unfused form made seven passes over every moment and parameter tensor.
+// One parallel pass over the elements: the unfused form made seven passes over every moment and
+// parameter tensor.
 void adam_update(torch::Tensor& param, const torch::Tensor& grad, torch::Tensor& m,
                  torch::Tensor& v, double lr, int64_t step) {
   TORCH_CHECK(
@@ -1107,7 +1107,6 @@ void adam_update(torch::Tensor& param, const torch::Tensor& grad, torch::Tensor&
   at::parallel_for(0, param.numel(), 1 << 15,
                    [&](int64_t b, int64_t e) { adam_kernel(p, mp, vp, gp, b, e, s); });
 }
-}  // namespace
 
 void AnchorModel::optimizer_step() {
   torch::NoGradGuard ng;
