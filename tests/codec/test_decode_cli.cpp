@@ -225,6 +225,19 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
       else
         EXPECT_GT(diff, 1e-3f) << "the view weight made no difference";
     }
+    // --refine moves the same Gaussians (refine_gaussians is tested in test_gaussian_export).
+    const std::string refined = (dir / "refined.ply").string();
+    ASSERT_EQ(run_cli("export '" + (dir / "run").string() + "' -o '" + refined +
+                          "' --sh-degree 1 --view-weight 0.5 --refine 4 --threads 1",
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("training views: 4 iterations"), std::string::npos) << log;
+    auto r = read_ply(refined);
+    ASSERT_TRUE(r.ok()) << r.status().to_string();
+    ASSERT_EQ(r->size(), cli->size());
+    EXPECT_NE(r->means, cli->means);
+    EXPECT_NE(r->opacity, cli->opacity);
   }
 
   // 3d. Outputs that would replace an input are refused, and nothing is written.
