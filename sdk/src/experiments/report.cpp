@@ -262,7 +262,9 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
                      " using 1:3 with lines lw 2 title " + gp_quote(label);
       }
     if (!plot_list.empty()) {
-      std::string b = "set title " + gp_quote("Test PSNR vs training time: " + g.dataset) + "\n";
+      std::string b =
+          "set title " +
+          gp_quote("Held-out view PSNR (first test view) vs training time: " + g.dataset) + "\n";
       b += "set xlabel \"training wall-clock (s)\"\nset ylabel \"PSNR (dB)\"\nplot " + plot_list;
       draw("time_" + ds + ".png", b, 1000, 600);
     }

@@ -47,7 +47,7 @@ struct ViewMetrics {
 struct TracePoint {
   double seconds = 0;  ///< training wall-clock since the start (excluding evaluation)
   int iteration = 0;
-  double psnr = 0;  ///< mean test PSNR, dB
+  double psnr = 0;  ///< dB, the training's held-out view (the first test view), 8-bit round trip
 };
 
 struct RunMetrics {
