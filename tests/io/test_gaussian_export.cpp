@@ -375,6 +375,15 @@ TEST(GaussianExport, RefineRefusesWhatItCannotDo) {
   o.opacity_lr = RefineOptions{}.opacity_lr;
   o.means_lr_final = 0;  // a log-linear decay to 0
   EXPECT_FALSE(refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  o.means_lr_final = RefineOptions{}.means_lr_final;
+  o.lambda_dssim = 1.5;
+  EXPECT_FALSE(refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  o.lambda_dssim = RefineOptions{}.lambda_dssim;
+  auto cameras_only = s.ds.train;  // e.g. a dataset loaded without its images
+  cameras_only[0].image = Image{};
+  auto no_photo = refine_gaussians(*g, *s.raster, cameras_only, {0, 0, 0}, o);
+  ASSERT_FALSE(no_photo.ok());
+  EXPECT_NE(no_photo.status().message().find("no RGB photo"), std::string::npos);
   o.iterations = 0;  // nothing to do, nothing changes
   auto zero = refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o);
   ASSERT_TRUE(zero.ok());

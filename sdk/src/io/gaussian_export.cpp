@@ -330,6 +330,13 @@ StatusOr<RefineReport> refine_gaussians(PlyGaussians& g, Rasterizer& rasterizer,
     return Status(StatusCode::kInvalidArgument,
                   "refine: the means' learning rate decays log-linearly: its start and end must "
                   "both be 0 or both be > 0");
+  if (!(o.lambda_dssim >= 0 && o.lambda_dssim <= 1))
+    return Status(StatusCode::kInvalidArgument, "refine: lambda_dssim must be in [0, 1]");
+  for (const auto& v : views)
+    if (v.image.width != v.camera.width || v.image.height != v.camera.height ||
+        v.image.channels != 3)
+      return Status(StatusCode::kInvalidArgument,
+                    "refine: view '" + v.camera.name + "' has no RGB photo of its camera's size");
   CRPGS_RETURN_IF_ERROR(g.check());
   PlyTensors t = ply_tensors(g);
   // 3DGS's cameras_extent (getNerfppNorm): scales the means' learning rate to the scene.
