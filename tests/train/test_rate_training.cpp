@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <set>
 
 #include "crpgs/atomic_file.h"
@@ -424,6 +425,37 @@ TEST(RateTraining, TheSequentialFernSweepHasFernRdsRunsAndPrefixes) {
         shared_prefix_key(experiments::build_run_config(run, &test::rate_registry()).value()),
         shared_prefix_key(experiments::build_run_config(other, &test::rate_registry()).value()))
         << run.id;
+  }
+}
+
+// fern_rd_low_rate.yaml adds rate weights to fern_rd.yaml's runs directory: new ids, and each
+// method starts from the prefix fern_rd's runs of that method publish.
+TEST(RateTraining, TheLowRateFernSweepAddsRunsThatShareFernRdsPrefixes) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = CRPGS_SOURCE_DIR;
+  auto rd = experiments::load_sweep(root + "/configs/sweeps/fern_rd.yaml");
+  auto low = experiments::load_sweep(root + "/configs/sweeps/fern_rd_low_rate.yaml");
+  ASSERT_TRUE(rd.ok() && low.ok());
+  EXPECT_EQ(rd->output, low->output);
+  const std::string out = std::string(CRPGS_TEST_TMP_DIR) + "/low_rate_sweep";
+  std::filesystem::remove_all(out);
+  std::map<std::string, std::string> prefix_of_method;
+  std::set<std::string> ids;
+  auto key_of = [&](experiments::SweepRun run) {
+    run.config_path = root + "/" + run.config_path;
+    EXPECT_TRUE(experiments::prepare_run(run, &test::rate_registry()).ok()) << run.id;
+    return shared_prefix_key(experiments::build_run_config(run, &test::rate_registry()).value());
+  };
+  for (const auto& run : experiments::expand_sweep(rd.value(), out)) {
+    prefix_of_method[run.method] = key_of(run);
+    ids.insert(run.id);
+  }
+  const auto added = experiments::expand_sweep(low.value(), out);
+  ASSERT_EQ(added.size(), 4u);
+  for (const auto& run : added) {
+    EXPECT_EQ(ids.count(run.id), 0u) << run.id << " is one of fern_rd's runs";
+    ASSERT_EQ(prefix_of_method.count(run.method), 1u) << run.method;
+    EXPECT_EQ(key_of(run), prefix_of_method[run.method]) << run.id;
   }
 }
 
