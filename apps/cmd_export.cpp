@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 
 #include "cli_common.h"
 #include "crpgs/atomic_file.h"
@@ -80,35 +81,46 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
     opt.view_weight = 0;
     std::fprintf(stderr, "note: no training views; SH fitted on the sphere alone\n");
   }
+  if (refine > 0 && ds.train.empty())  // before the bake, which may take a while
+    return report_error(Status(StatusCode::kInvalidArgument,
+                               "--refine needs the training views, and the dataset has none"));
   const auto t0 = std::chrono::steady_clock::now();
   auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
   if (!baked.ok()) return report_error(baked.status());
   const double bake_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (refine > 0) {
-    if (ds.train.empty())
-      return report_error(Status(StatusCode::kInvalidArgument,
-                                 "--refine needs the training views, and the dataset has none"));
     RefineOptions ro;
     ro.iterations = refine;
+    ro.lambda_dssim = src->setup->options().lambda_dssim;  // the model's own training loss
+    ro.seed = src->setup->options().seed;
     const auto t1 = std::chrono::steady_clock::now();
-    ProgressBar bar("refine", refine);
-    auto rep =
-        refine_gaussians(baked.value(), src->setup->rasterizer(), ds.train,
-                         model.options().effects.background, ro, [&bar](int it, double loss) {
-                           char extra[32];
-                           std::snprintf(extra, sizeof extra, "loss %.4f", loss);
-                           bar.update(it, extra);
-                         });
-    bar.finish();
+    std::optional<ProgressBar> bar;
+    auto rep = refine_gaussians(baked.value(), src->setup->rasterizer(), ds.train,
+                                model.options().effects.background, ro,
+                                [&bar, refine](int it, double loss) {
+                                  if (!bar) bar.emplace("refine", refine);
+                                  char extra[32];
+                                  std::snprintf(extra, sizeof extra, "loss %.4f", loss);
+                                  bar->update(it, extra);
+                                });
+    if (bar) bar->finish();
     if (!rep.ok()) return report_error(rep.status());
-    std::printf(
-        "refined on %zu training views: %d iterations, loss %.4f -> %.4f (mean over a pass of "
-        "the views)%s, %.1f s\n",
-        ds.train.size(), rep->iterations, rep->first_loss, rep->last_loss,
-        rep->skipped > 0 ? (", " + std::to_string(rep->skipped) + " non-finite skipped").c_str()
-                         : "",
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
+    std::string losses;  // the first and last complete passes, when there are two
+    char text[96];
+    if (rep->passes >= 2)
+      std::snprintf(text, sizeof text, ", loss %.4f -> %.4f (mean of the first and last pass)",
+                    rep->first_pass_loss, rep->last_pass_loss);
+    else if (rep->passes == 1)
+      std::snprintf(text, sizeof text, ", loss %.4f (mean of its one pass)", rep->first_pass_loss);
+    else
+      text[0] = '\0';
+    losses = text;
+    if (rep->skipped > 0)
+      losses += ", " + std::to_string(rep->skipped) + " with a non-finite loss or gradient skipped";
+    std::printf("refined on %zu training views: %d iterations%s, %.1f s\n", ds.train.size(),
+                rep->iterations, losses.c_str(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
   }
   Status st = write_ply(out, baked.value());
   if (!st.ok()) return report_error(st);

@@ -311,7 +311,8 @@ TEST(GaussianExport, RefineFitsTheTrainingViewsAndKeepsTheGaussians) {
   EXPECT_EQ(rep->iterations, 100);
   EXPECT_EQ(calls, 100);
   EXPECT_EQ(rep->skipped, 0);
-  EXPECT_LT(rep->last_loss, 0.8 * rep->first_loss);
+  EXPECT_EQ(rep->passes, 100 / int(s.ds.train.size()));
+  EXPECT_LT(rep->last_pass_loss, 0.8 * rep->first_pass_loss);
   ASSERT_TRUE(g->check().ok());
   EXPECT_EQ(g->size(), before.size());
   EXPECT_EQ(g->sh_degree, 1);
@@ -338,11 +339,12 @@ TEST(GaussianExport, RefineIsDeterministicAndLeavesUnlearntParametersExact) {
   PlyGaussians a = g.value(), b = g.value();
   ASSERT_TRUE(refine_gaussians(a, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
   ASSERT_TRUE(refine_gaussians(b, *s.raster, s.ds.train, {0, 0, 0}, o).ok());
+  EXPECT_NE(a.sh_rest, g->sh_rest);  // degree 3's higher coefficients are learnt too
   EXPECT_EQ(a.means, b.means);
   EXPECT_EQ(a.sh_rest, b.sh_rest);
   EXPECT_EQ(a.opacity, b.opacity);
-  // With every learning rate 0 the parameters come back bit-exact: the tensors' layout (f_rest
-  // channel-major) round-trips.
+  // With every learning rate 0 the parameters come back bit-exact: reading the file's arrays
+  // into the optimised tensors and writing them back undo each other.
   o.means_lr = o.means_lr_final = 0;
   o.sh_dc_lr = o.sh_rest_lr = o.opacity_lr = o.scaling_lr = o.rotation_lr = 0;
   PlyGaussians c = g.value();
@@ -390,6 +392,16 @@ TEST(GaussianExport, RefineRefusesWhatItCannotDo) {
   EXPECT_EQ(zero->iterations, 0);
   EXPECT_EQ(g->means, before.means);
   EXPECT_EQ(g->opacity, before.opacity);
+  // Degree 0 has no f_rest to learn; the rest is refined as at any degree.
+  o.iterations = 3;
+  auto d0 = refine_gaussians(*g, *s.raster, s.ds.train, {0, 0, 0}, o);
+  ASSERT_TRUE(d0.ok()) << d0.status().message();
+  EXPECT_EQ(d0->skipped, 0);
+  EXPECT_EQ(d0->passes, 0);  // fewer iterations than views: no complete pass
+  EXPECT_TRUE(g->sh_rest.empty());
+  EXPECT_NE(g->means, before.means);
+  EXPECT_NE(g->sh_dc, before.sh_dc);
+  EXPECT_NE(g->opacity, before.opacity);
 }
 
 }  // namespace

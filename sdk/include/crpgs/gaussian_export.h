@@ -25,6 +25,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstdint>
 #include <functional>
 #include <vector>
 
@@ -85,27 +86,32 @@ GaussianBatch ply_to_batch(const PlyGaussians& g, const Camera& camera);
 /// Gaussians stay those the bake made.
 struct RefineOptions {
   int iterations = 0;  ///< 0: nothing changes
+  /// Loss (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM): the trainer's photometric loss
+  /// (`train.lambda_dssim`), without its scale-volume term.
   double lambda_dssim = 0.2;
-  /// 3DGS's learning rates (train.py defaults). The means' is multiplied by the cameras' extent
-  /// (1.1 x the largest distance of a camera centre from their mean, as 3DGS) and decays
-  /// log-linearly from `means_lr` to `means_lr_final` over the iterations: a baked scene is
-  /// already converged, so it starts a tenth of the way down 3DGS's schedule (1.6e-4 -> 1.6e-6).
+  /// 3DGS's learning rates (train.py defaults). The means' is multiplied by the cameras'
+  /// extent (cameras_extent, as 3DGS and our trainer) and decays log-linearly from `means_lr` to
+  /// `means_lr_final` over the iterations. A baked scene is converged, so it starts at a tenth
+  /// of 3DGS's initial rate 1.6e-4 (where 3DGS's own schedule is halfway through).
   double means_lr = 1.6e-5, means_lr_final = 1.6e-6;
   double sh_dc_lr = 2.5e-3, sh_rest_lr = 2.5e-3 / 20;
   double opacity_lr = 0.05, scaling_lr = 5e-3, rotation_lr = 1e-3;
-  uint64_t seed = 0;  ///< order of the views (a fresh permutation per pass)
+  uint64_t seed = 0;  ///< order of the views: a fresh seeded permutation per pass
 };
 
 struct RefineReport {
   int iterations = 0;
   int skipped = 0;  ///< iterations whose loss or gradients were not finite (no update)
-  double first_loss = 0, last_loss = 0;  ///< mean loss over the first and last pass of views
+  /// Complete passes over the views (each view once, in a shuffled order) that kept at least
+  /// one iteration, and the mean loss of the first and the last of them (0 when none).
+  int passes = 0;
+  double first_pass_loss = 0, last_pass_loss = 0;
 };
 
-/// Optimises `g` in place on `views` (camera + photo each; at least one when iterations > 0) with
-/// loss (1 - lambda_dssim) L1 + lambda_dssim (1 - SSIM), the trainer's. The means get the
-/// rasterizer's gradient only, not the SH colour's through the view direction. `on_iteration`
-/// (optional) is called after each iteration with its 1-based number and loss.
+/// Optimises `g` in place on `views` (camera + photo each; at least one when iterations > 0).
+/// The means get the rasterizer's gradient only, not the SH colour's through the view
+/// direction. `on_iteration` (optional) is called after each iteration with its 1-based number
+/// and loss.
 StatusOr<RefineReport> refine_gaussians(
     PlyGaussians& g, Rasterizer& rasterizer, const std::vector<View>& views,
     const std::array<float, 3>& background, const RefineOptions& options,

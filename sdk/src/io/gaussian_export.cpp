@@ -4,15 +4,14 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numeric>
-#include <random>
 #include <stdexcept>
 
 #include <torch/nn/functional/normalization.h>
 
+#include "core/shuffle.h"
 #include "crpgs/trainer.h"
-#include "model/adam.h"
 #include "model/chunked_mlp.h"
+#include "model/optimizer.h"
 
 namespace crpgs {
 namespace {
@@ -339,13 +338,9 @@ StatusOr<RefineReport> refine_gaussians(PlyGaussians& g, Rasterizer& rasterizer,
                     "refine: view '" + v.camera.name + "' has no RGB photo of its camera's size");
   CRPGS_RETURN_IF_ERROR(g.check());
   PlyTensors t = ply_tensors(g);
-  // 3DGS's cameras_extent (getNerfppNorm): scales the means' learning rate to the scene.
-  Eigen::Vector3d mean_c = Eigen::Vector3d::Zero();
-  for (const auto& v : views) mean_c += v.camera.center();
-  mean_c /= double(views.size());
-  double radius = 0;
-  for (const auto& v : views) radius = std::max(radius, (v.camera.center() - mean_c).norm());
-  const double extent = radius > 0 ? 1.1 * radius : 1.0;  // one camera: no scale to take
+  std::vector<Eigen::Vector3d> centers;
+  for (const auto& v : views) centers.push_back(v.camera.center());
+  const double extent = cameras_extent(centers);
 
   struct Group {
     torch::Tensor* param;
@@ -367,19 +362,17 @@ StatusOr<RefineReport> refine_gaussians(PlyGaussians& g, Rasterizer& rasterizer,
   for (const auto& v : views) photos.push_back(image_to_tensor(v.image));
   RenderSettings settings;
   settings.background = background;
-  std::mt19937_64 rng(o.seed);
-  std::vector<size_t> order(views.size());
-  std::iota(order.begin(), order.end(), size_t(0));
-  std::vector<double> losses;
-  const double log_lr0 = o.means_lr > 0 ? std::log(o.means_lr) : 0;
-  const double log_lr1 = o.means_lr > 0 ? std::log(o.means_lr_final) : 0;
+  const int n_views = int(views.size());
+  std::vector<int> order;
+  double pass_loss = 0;  // sum over this pass's kept iterations
+  int pass_kept = 0;
+  std::vector<double> pass_means;  // one per complete pass with a kept iteration
   for (int it = 1; it <= o.iterations; ++it) {
-    const size_t pos = size_t(it - 1) % views.size();
-    if (pos == 0) std::shuffle(order.begin(), order.end(), rng);
-    const View& view = views[order[pos]];
-    const torch::Tensor& photo = photos[order[pos]];
-    const double f = o.iterations > 1 ? double(it - 1) / double(o.iterations - 1) : 0.0;
-    groups[0].lr = o.means_lr > 0 ? extent * std::exp(log_lr0 * (1 - f) + log_lr1 * f) : 0.0;
+    const int pass = (it - 1) / n_views, pos = (it - 1) % n_views;
+    if (pos == 0) order = seeded_permutation(n_views, o.seed * 0x9E3779B97F4A7C15ull + pass);
+    const View& view = views[size_t(order[size_t(pos)])];
+    const torch::Tensor& photo = photos[size_t(order[size_t(pos)])];
+    groups[0].lr = extent * log_lerp(o.means_lr, o.means_lr_final, it - 1, o.iterations - 1);
     auto image =
         rasterizer.render(activate(t, g.sh_degree, view.camera), view.camera, settings).image;
     auto loss = (1.0 - o.lambda_dssim) * (image - photo).abs().mean() +
@@ -398,19 +391,25 @@ StatusOr<RefineReport> refine_gaussians(PlyGaussians& g, Rasterizer& rasterizer,
         if (!gr.param->grad().defined()) continue;
         adam_update(*gr.param, gr.param->grad(), gr.m, gr.v, gr.lr, ++gr.step);
       }
-      losses.push_back(value);
+      pass_loss += value;
+      ++pass_kept;
     } else {
       ++report.skipped;  // a non-finite update would poison the Adam moments for good
     }
     for (auto& gr : groups)
       if (gr.param->grad().defined()) gr.param->mutable_grad().reset();
+    if (pos == n_views - 1) {
+      if (pass_kept > 0) pass_means.push_back(pass_loss / pass_kept);
+      pass_loss = 0;
+      pass_kept = 0;
+    }
     report.iterations = it;
     if (on_iteration) on_iteration(it, value);
   }
-  const size_t pass = std::min(views.size(), losses.size());
-  if (pass > 0) {
-    report.first_loss = std::accumulate(losses.begin(), losses.begin() + long(pass), 0.0) / pass;
-    report.last_loss = std::accumulate(losses.end() - long(pass), losses.end(), 0.0) / pass;
+  report.passes = int(pass_means.size());
+  if (!pass_means.empty()) {
+    report.first_pass_loss = pass_means.front();
+    report.last_pass_loss = pass_means.back();
   }
   torch::NoGradGuard no_grad;
   for (auto& gr : groups) gr.param->requires_grad_(false);

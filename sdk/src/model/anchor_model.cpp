@@ -4,9 +4,9 @@
 #include "crpgs/anchor_model.h"
 
 #include "crpgs/links.h"
-#include "model/adam.h"
 #include "model/adam_kernel.h"
 #include "model/chunked_mlp.h"
+#include "model/optimizer.h"
 #include "model/sorted_gather.h"
 
 #include <torch/torch.h>
@@ -258,13 +258,22 @@ torch::Tensor AnchorModel::Impl::leaf_means(const torch::Tensor& rows, const tor
   return base_mu.index_put({leaf_rows}, mu_leaf);
 }
 
-namespace {
 double log_lerp(double a, double b, int it, int max_steps) {
   if (a == b || a <= 0 || b <= 0) return a;
   const double s = std::clamp(double(it) / std::max(1, max_steps), 0.0, 1.0);
   return std::exp((1 - s) * std::log(a) + s * std::log(b));
 }
-}  // namespace
+
+double cameras_extent(const std::vector<Eigen::Vector3d>& centers) {
+  if (centers.empty()) return 1.0;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& c : centers) mean += c;
+  mean /= double(centers.size());
+  double radius = 0;
+  for (const auto& c : centers) radius = std::max(radius, (c - mean).norm());
+  radius *= 1.1;
+  return radius > 1e-6 ? radius : 1.0;
+}
 
 void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
   const LearningRates& lr = opt.lr;
@@ -370,17 +379,10 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
   impl->K = options.n_offsets;
   const int K = impl->K;
 
-  // 1. Camera extent -> spatial lr scale (3DGS getNerfppNorm: 1.1 x max distance to the mean).
-  const int64_t n_cam = int64_t(init.train_cameras.size());
-  auto centers = torch::empty({n_cam, 3}, torch::kDouble);
-  for (int64_t i = 0; i < n_cam; ++i) {
-    const Eigen::Vector3d c = init.train_cameras[size_t(i)].center();
-    for (int a = 0; a < 3; ++a) centers[i][a] = c[a];
-  }
-  auto mean_c = centers.mean(0);
-  double radius = (centers - mean_c).norm(2, 1).max().item<double>() * 1.1;
-  if (!(radius > 1e-6)) radius = 1.0;
-  impl->spatial_lr_scale = radius;
+  // 1. Camera extent -> spatial lr scale.
+  std::vector<Eigen::Vector3d> centers;
+  for (const auto& c : init.train_cameras) centers.push_back(c.center());
+  impl->spatial_lr_scale = cameras_extent(centers);
 
   // 2. Points: SfM, or random inside the cameras' bounds.
   torch::Tensor pts;
@@ -391,7 +393,13 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
       for (int a = 0; a < 3; ++a) acc[int64_t(i)][a] = init.points[i][size_t(a)];
   } else {
     const int64_t n = std::max(1, options.random_init_points);
-    pts = random_points_seen(n, radius / 1.1, mean_c.to(torch::kFloat), init.train_cameras, gen);
+    Eigen::Vector3d mean_c = Eigen::Vector3d::Zero();
+    for (const auto& c : centers) mean_c += c;
+    mean_c /= double(centers.size());
+    pts =
+        random_points_seen(n, impl->spatial_lr_scale / 1.1,
+                           torch::tensor({float(mean_c.x()), float(mean_c.y()), float(mean_c.z())}),
+                           init.train_cameras, gen);
   }
 
   // 3. Voxelise: unique(round(p / v)) * v (v automatic when voxel_size <= 0).
@@ -441,7 +449,8 @@ StatusOr<std::unique_ptr<AnchorModel>> AnchorModel::create(const AnchorModelOpti
   if (fx.appearance_dim > 0) {
     impl->i_app = int(impl->groups.size());
     impl->add_group("appearance", "appearance",
-                    torch::randn({n_cam, int64_t(fx.appearance_dim)}, gen), false);
+                    torch::randn({int64_t(centers.size()), int64_t(fx.appearance_dim)}, gen),
+                    false);
   }
   // 7. The feature model's own parameters (e.g. SFA's hash grid) share the optimizer.
   int fm_index = 0;

@@ -17,6 +17,7 @@
 #include <random>
 #include <sstream>
 
+#include "core/shuffle.h"
 #include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
@@ -110,15 +111,8 @@ int Trainer::view_for_iteration(int iteration) const {
   // Deterministic from (seed, iteration) alone, so a resumed run sees the same views.
   const int n = int(dataset_.train.size());
   const int epoch = (iteration - 1) / n, pos = (iteration - 1) % n;
-  std::vector<int> perm(static_cast<size_t>(n));
-  std::iota(perm.begin(), perm.end(), 0);
-  std::mt19937_64 rng(options_.seed * 0x9E3779B97F4A7C15ull + uint64_t(epoch) +
-                      replay_salt_ * 0xD1B54A32D192ED03ull);
-  for (int i = n - 1; i > 0; --i) {  // Fisher-Yates with our own draw (portable)
-    const int j = int(rng() % uint64_t(i + 1));
-    std::swap(perm[size_t(i)], perm[size_t(j)]);
-  }
-  return perm[size_t(pos)];
+  return seeded_permutation(n, options_.seed * 0x9E3779B97F4A7C15ull + uint64_t(epoch) +
+                                   replay_salt_ * 0xD1B54A32D192ED03ull)[size_t(pos)];
 }
 
 StatusOr<double> Trainer::step() {
