@@ -61,14 +61,17 @@ struct UnfinishedRun {
 /// 0.73 it/s, fern/hac 1.10 it/s)". A group no run of which measured a rate takes the mean of the
 /// others'. A run without a log or a config that resolves has no schedule to count: it is named
 /// instead.
+/// `borrowed`: groups whose rate other runs of the runs directory measured, not the sweep's own.
 void print_time_left(const std::vector<UnfinishedRun>& left,
-                     const std::map<std::string, double>& rates, int workers) {
+                     const std::map<std::string, double>& rates,
+                     const std::set<std::string>& borrowed, int workers) {
   double iterations = 0, mean = 0;
   int unknown = 0;
   std::vector<std::string> measured;
   for (const auto& [group, r] : rates) {
     mean += r / double(rates.size());
-    measured.push_back(group + " " + format_rate(r) + " it/s");
+    measured.push_back(group + " " + format_rate(r) + " it/s" +
+                       (borrowed.count(group) ? " by other runs of the directory" : ""));
   }
   std::vector<ex::RunLeft> order;  // the running runs first: they hold their workers
   std::set<std::string> guessed;
@@ -208,7 +211,24 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
   for (const auto* measured : {&stopped_rates, &running_rates})
     for (const auto& [group, r] : *measured)
       rates[group] = std::accumulate(r.begin(), r.end(), 0.0) / double(r.size());
-  print_time_left(left, rates, spec.workers);
+  // A group none of the sweep's runs measured: the other runs of that group in the directory
+  // (another sweep file writing there, e.g. fern_rd_low_rate.yaml beside fern_rd.yaml).
+  std::set<std::string> own_dirs, borrowed;
+  for (const auto& r : runs) own_dirs.insert(fs::path(r.dir).lexically_normal().string());
+  for (const auto& l : left) {
+    std::error_code ec;
+    const fs::path group_dir = fs::path(runs_dir) / l.group;
+    if (rates.count(l.group) || !fs::is_directory(group_dir, ec)) continue;
+    std::vector<double> others;
+    for (const auto& e : fs::directory_iterator(group_dir, ec))
+      if (e.is_directory(ec) && !own_dirs.count(e.path().lexically_normal().string()))
+        if (auto p = last_progress(file_tail((e.path() / "stderr.log").string()), "train"))
+          others.push_back(p->rate);
+    if (others.empty()) continue;
+    rates[l.group] = std::accumulate(others.begin(), others.end(), 0.0) / double(others.size());
+    borrowed.insert(l.group);
+  }
+  print_time_left(left, rates, borrowed, spec.workers);
   for (const auto& [key, n] : sharing) {
     if (n < 2) continue;  // nothing to share
     std::printf("shared prefix %s (%d runs): %s\n", key.c_str(), n,
@@ -366,7 +386,8 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
   cmd->add_flag("--status", a.status,
                 "show each run's state, progress (iteration, rate, ETA: from its log) or result, "
                 "which waiting runs will start from a shared prefix, and the sweep's time left "
-                "at the rates the runs last measured; runs nothing");
+                "at the rates the runs last measured (or, for a method and scene none of them "
+                "has run yet, other runs of it in the runs directory); runs nothing");
   cmd->add_flag("--dry-run", a.dry_run,
                 "list what would run (with --slurm: print the sbatch script); run nothing");
   cmd->callback([&g] { throw CLI::RuntimeError(run_sweep_command(a, g)); });

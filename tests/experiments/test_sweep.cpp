@@ -555,6 +555,16 @@ TEST(Sweep, StatusShowsTheSharedPrefixes) {
   EXPECT_NE(out.find("shared prefix " + key + " (2 runs): published"), std::string::npos) << out;
   EXPECT_NE(out.find("waiting (will start from its shared prefix)"), std::string::npos) << out;
   EXPECT_NE(out.find("left: 40000 iterations;"), std::string::npos) << out;  // both from 10k
+  // A run of the same group that another sweep file put in the directory measured a rate: the
+  // time left uses it, and says whose it is. 2 x 20000 iterations on 1 worker at 2/s: 20000 s.
+  fs::create_directories(dir + "/runs/default/h/lambda-9.0e-3");
+  write_text(dir + "/runs/default/h/lambda-9.0e-3/stderr.log",
+             "train  10% 3000/30000 2.0/s 25m00s ETA 3h45m loss 0.02\n");
+  out = status();
+  EXPECT_NE(out.find("left: 40000 iterations, about 5h33m with 1 worker at the rates last "
+                     "measured (default/h 2.00 it/s by other runs of the directory)"),
+            std::string::npos)
+      << out;
 #endif
 }
 
