@@ -84,6 +84,10 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   if (refine > 0 && ds.train.empty())  // before the bake, which may take a while
     return report_error(Status(StatusCode::kInvalidArgument,
                                "--refine needs the training views, and the dataset has none"));
+  if (refine > 0 && !src->train_views_as_trained)
+    std::fprintf(stderr,
+                 "warning: --set changed the train/test split: --refine fits the new training "
+                 "views, and the model may have been trained on the test views measured below\n");
   const auto t0 = std::chrono::steady_clock::now();
   auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
   if (!baked.ok()) return report_error(baked.status());
@@ -118,8 +122,8 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
     losses = text;
     if (rep->skipped > 0)
       losses += ", " + std::to_string(rep->skipped) + " with a non-finite loss or gradient skipped";
-    std::printf("refined on %zu training views: %d iterations%s, %.1f s\n", ds.train.size(),
-                rep->iterations, losses.c_str(),
+    std::printf("refined on %zu training views: %d iteration%s%s, %.1f s\n", ds.train.size(),
+                rep->iterations, rep->iterations == 1 ? "" : "s", losses.c_str(),
                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
   }
   Status st = write_ply(out, baked.value());
