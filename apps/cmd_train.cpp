@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "cli_common.h"
+#include "core/text_list.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
@@ -101,6 +102,11 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.width,
               t.dataset().train.empty() ? 0 : t.dataset().train[0].camera.height,
               static_cast<long long>(t.model().num_anchors()));
+  if (const auto views = t.trace_views(); !views.empty() && t.options().eval_interval > 0) {
+    std::string measure = experiments::trace_measure(views);
+    if (views.size() > 1) measure += " (" + join(views) + ")";
+    std::printf("test PSNR (progress, trace): %s\n", measure.c_str());
+  }
   if (!t.prefix_status().empty())
     std::printf("%s\n", t.prefix_status().c_str());
   else if (t.iteration() > 0)
@@ -185,6 +191,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   m.config_hash = hex64(cfg.hash());
   m.train_seconds = train_s;
   for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
+  if (!m.trace.empty()) m.trace_views = t.trace_views();
   m.peak_memory_bytes = experiments::peak_rss_bytes();
   st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
   if (!st.ok()) return report_error(st);

@@ -39,6 +39,7 @@ std::string make_fixture(const std::string& name) {
       m.decode_seconds = 1 + 0.25 * i;
       for (int t = 1; t <= 10; ++t)
         m.trace.push_back({m.train_seconds * t / 10, 3000 * t, psnr - 8.0 / t});
+      m.trace_views = {"v0", "v8"};
       m.peak_memory_bytes = int64_t(2) << 30;
       const uint64_t s = m.size_bytes;
       m.breakdown = {s / 10, s / 3,  s / 12, s / 8, s / 40, method == "crpgs" ? s / 50 : 0,
@@ -293,6 +294,39 @@ TEST(Report, APlotGnuplotCannotDrawBecomesANoteAndTheTablesAreWritten) {
   EXPECT_NE(md.find("| hac | crpgs | -30.00 |"), std::string::npos) << md;
   EXPECT_NE(md.find("> cost_fern.png not drawn"), std::string::npos) << md;
   EXPECT_NE(read_text(out->html).find("rd_fern.png not drawn"), std::string::npos);
+}
+
+TEST(Report, TheTimePlotSaysWhatItsTracesMeasure) {
+  const std::string dir = fresh_dir("trace_title");
+  const std::string gnuplot = dir + "/gnuplot";
+  const std::string scripts = dir + "/scripts.gp";
+  write_text(gnuplot,
+             "#!/bin/sh\n[ \"$1\" = --version ] && { echo gnuplot 5.4; exit 0; }\n"
+             "cat \"$1\" >> '" +
+                 scripts + "'\nexit 1\n");
+  fs::permissions(gnuplot, fs::perms::owner_all);
+  const std::string runs = make_fixture("trace_title_runs");
+  ReportOptions opt;
+  opt.gnuplot = gnuplot;
+  opt.out_dir = dir + "/out";
+  ASSERT_TRUE(write_report({runs}, opt).ok());
+  EXPECT_NE(read_text(scripts).find("Held-out PSNR (mean of 2 test views) vs training time: fern"),
+            std::string::npos)
+      << read_text(scripts);
+
+  // A run of an older build traced its first test view alone: the runs now measure different
+  // things, and the title does not pretend otherwise.
+  const std::string run = runs + "/fern/hac/lambda-0/metrics.json";
+  auto m = read_run_metrics(run);
+  ASSERT_TRUE(m.ok());
+  m->trace_views.clear();
+  ASSERT_TRUE(write_run_metrics(run, m.value()).ok());
+  fs::remove(scripts);
+  ASSERT_TRUE(write_report({runs}, opt).ok());
+  EXPECT_NE(read_text(scripts).find("Held-out PSNR (per run: see trace_views in metrics.json)"),
+            std::string::npos)
+      << read_text(scripts);
+  EXPECT_EQ(read_run_metrics(run)->trace_views, std::vector<std::string>{"v0"});
 }
 
 TEST(Report, ADirectoryWithoutRunsIsAnError) {

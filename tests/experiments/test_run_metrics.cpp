@@ -21,6 +21,7 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   m.train_seconds = 1800.25;
   m.encode_seconds = 3.5;
   m.trace = {{10.5, 100, 18.25}, {20.0, 200, 21.0}};
+  m.trace_views = {"view_000", "view_008"};
   m.peak_memory_bytes = peak_rss_bytes();
   EXPECT_GT(m.peak_memory_bytes, 0);
 
@@ -45,7 +46,23 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   ASSERT_EQ(r.trace.size(), 2u);
   EXPECT_EQ(r.trace[1].iteration, 200);
   EXPECT_DOUBLE_EQ(r.trace[0].seconds, 10.5);
+  EXPECT_EQ(r.trace_views, m.trace_views);
   EXPECT_EQ(r.peak_memory_bytes, m.peak_memory_bytes);
+}
+
+TEST(RunMetrics, ATraceWithoutItsViewsIsOfTheFirstTestView) {
+  // What builds before trace_views wrote: the trace measured the first test view alone.
+  const std::string head =
+      "{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
+      "\"views\": [{\"name\": \"a\", \"psnr\": 30}, "
+      "{\"name\": \"b\", \"psnr\": 31}]";
+  auto legacy = run_metrics_from_json(head + ", \"trace\": [[1, 100, 29]]}");
+  ASSERT_TRUE(legacy.ok()) << legacy.status().message();
+  EXPECT_EQ(legacy->trace_views, std::vector<std::string>{"a"});
+  auto no_trace = run_metrics_from_json(head + "}");
+  ASSERT_TRUE(no_trace.ok());
+  EXPECT_TRUE(no_trace->trace_views.empty());
+  EXPECT_FALSE(run_metrics_from_json(head + ", \"trace_views\": [3]}").ok());
 }
 
 TEST(RunMetrics, RejectsIncompleteDocuments) {

@@ -14,8 +14,10 @@
 
 #include "cli_test_util.h"
 #include "crpgs/dir_lock.h"
+#include "crpgs/experiments/run_metrics.h"
 #include "crpgs/experiments/sweep.h"
 #include "crpgs/runtime.h"
+#include "crpgs/trainer.h"
 
 namespace crpgs {
 namespace {
@@ -59,6 +61,20 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
             0)
       << log;
   const double full_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  // The progress lines' test PSNR (and metrics.json's trace) average every test view here.
+  {
+    auto m = experiments::read_run_metrics((dir / "ref" / "metrics.json").string());
+    ASSERT_TRUE(m.ok()) << m.status().message();
+    ASSERT_GE(m->views.size(), 2u);
+    ASSERT_LE(m->views.size(), size_t(Trainer::kMaxTraceViews));
+    std::vector<std::string> names;
+    for (const auto& v : m->views) names.push_back(v.name);
+    EXPECT_EQ(m->trace_views, names);
+    EXPECT_NE(log.find("test PSNR (progress, trace): mean of " + std::to_string(names.size()) +
+                       " test views (" + names[0] + ", "),
+              std::string::npos)
+        << log;
+  }
   // The CLI restarted itself with idle compute threads that sleep (apps/main.cpp; it needs
   // /proc, which a bare chroot may lack).
   if (fs::exists("/proc/self/exe") && !std::getenv("OMP_WAIT_POLICY") &&

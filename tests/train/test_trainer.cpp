@@ -728,6 +728,82 @@ TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
   EXPECT_GT(resumed->elapsed_seconds(), spent);
 }
 
+TEST(Trainer, PsnrTraceIsTheMeanOfEvenlySpacedTestViews) {
+  Dataset ds = scene(32, 24, 14);
+  ds.test = ds.train;  // more held-out views than the trace takes
+  ASSERT_EQ(ds.test.size(), 12u);
+  TrainOptions to;
+  to.schedule = tiny_schedule(10);
+  to.eval_interval = 5;
+  to.checkpoint_interval = 0;
+  to.output_dir = tmp_dir("trace_views");
+  auto t = trainer(ds, to);
+  const std::vector<std::string> names = t->trace_views();
+  ASSERT_EQ(names.size(), size_t(Trainer::kMaxTraceViews));
+  const std::vector<size_t> spaced = {0, 1, 3, 4, 6, 7, 9, 10};  // i * 12 / 8
+  for (size_t i = 0; i < spaced.size(); ++i)
+    EXPECT_EQ(names[i], ds.test[spaced[i]].camera.name) << i;
+  ASSERT_TRUE(t->train().ok());
+  ASSERT_EQ(t->psnr_trace().size(), 2u);
+  double mean = 0;
+  for (size_t i : spaced) mean += t->view_psnr(ds.test[i]) / double(spaced.size());
+  EXPECT_DOUBLE_EQ(t->psnr_trace().back().psnr, mean);
+  EXPECT_NE(t->psnr_trace().back().psnr, t->view_psnr(ds.test.front()));
+
+  // Fewer test views than the cap: all of them.
+  Dataset few = scene(32, 24, 6);
+  ASSERT_GE(few.test.size(), 1u);
+  EXPECT_EQ(trainer(few, to)->trace_views().size(), few.test.size());
+}
+
+TEST(Trainer, ATraceBegunOnTheFirstTestViewAloneStaysOnIt) {
+  // A checkpoint from a build that traced the first test view only (no "trace_views" entry):
+  // the resumed run goes on measuring that view, so its trace stays one measure.
+  Dataset ds = scene(32, 24, 14);
+  ds.test = ds.train;
+  TrainOptions to;
+  to.schedule = tiny_schedule(20);
+  to.eval_interval = 5;
+  to.checkpoint_interval = 0;
+  to.output_dir = tmp_dir("trace_legacy");
+  auto first = trainer(ds, to);
+  TrainControl control;
+  Recorder rec;
+  rec.control = &control;
+  rec.stop_at = 10;
+  ASSERT_EQ(first->train(&rec, &control).code(), StatusCode::kCancelled);
+  const std::string path = first->checkpoint_path();
+  {
+    torch::serialize::InputArchive in;
+    in.load_from(path);
+    torch::serialize::OutputArchive out;
+    bool had_count = false;
+    for (const auto& k : in.keys()) {
+      if (k == "trace_views") {
+        had_count = true;
+        continue;
+      }
+      torch::Tensor v;
+      in.read(k, v);
+      out.write(k, v);
+    }
+    ASSERT_TRUE(had_count);
+    out.save_to(path);
+  }
+  auto resumed = trainer(ds, to);
+  ASSERT_EQ(resumed->trace_views().size(), size_t(Trainer::kMaxTraceViews));
+  ASSERT_TRUE(resumed->load_checkpoint(path).ok());
+  ASSERT_EQ(resumed->trace_views(), std::vector<std::string>{ds.test.front().camera.name});
+  ASSERT_TRUE(resumed->train().ok());
+  ASSERT_EQ(resumed->psnr_trace().size(), 4u);
+  EXPECT_DOUBLE_EQ(resumed->psnr_trace().back().psnr, resumed->view_psnr(ds.test.front()));
+
+  // Its own checkpoint records that count now.
+  auto again = trainer(ds, to);
+  ASSERT_TRUE(again->load_checkpoint(resumed->checkpoint_path()).ok());
+  EXPECT_EQ(again->trace_views().size(), 1u);
+}
+
 TEST(Trainer, EvaluateWritesPngsAndMetrics) {
   Dataset ds = scene(32, 24, 9);
   TrainOptions to;

@@ -17,7 +17,7 @@ struct TrainingProgress {
   double loss = 0;  ///< total loss of this iteration
   double l1 = 0;    ///< L1 part
   bool has_test_psnr = false;
-  double test_psnr = 0;  ///< dB on the held-out view (8-bit round trip)
+  double test_psnr = 0;  ///< dB, mean over the trace's held-out views (8-bit round trip)
   int64_t anchors = 0;
   int64_t gaussians = 0;             ///< neural Gaussians rendered this iteration
   double iterations_per_second = 0;  ///< over the last report interval

@@ -109,7 +109,7 @@ struct EvalResult {
 struct PsnrPoint {
   double seconds = 0;  ///< training wall-clock (all processes of a resumed run, no evaluation)
   int iteration = 0;
-  double psnr = 0;  ///< dB, the held-out view, 8-bit round trip
+  double psnr = 0;  ///< dB, mean over Trainer::trace_views(), 8-bit round trip
 };
 
 /// The rate path's terms of the last iteration (rate phase only; `on` false otherwise).
@@ -160,6 +160,11 @@ class Trainer {
   double elapsed_seconds() const { return elapsed_; }
   /// Held-out PSNR every eval_interval iterations since iteration 0 (checkpointed).
   const std::vector<PsnrPoint>& psnr_trace() const { return psnr_trace_; }
+  /// The test views the trace averages: up to kMaxTraceViews of them, evenly spaced from the
+  /// first. A trace begun by a build that traced the first test view alone (a checkpoint or
+  /// prefix without the count) goes on with that view, so one run's trace stays one measure.
+  std::vector<std::string> trace_views() const;
+  static constexpr int kMaxTraceViews = 8;
 
   /// Writes everything needed to resume (model, optimizer, statistics, RNG, iteration) via a
   /// temporary file and rename.
@@ -248,6 +253,8 @@ class Trainer {
   int last_good_iteration_ = -1;
   double elapsed_ = 0;
   std::vector<PsnrPoint> psnr_trace_;
+  int trace_view_count_ = 0;  // trace_views().size(); checkpointed
+  std::vector<const View*> trace_view_ptrs() const;
   std::string prefix_status_;
   std::string state_build_id_;
   std::string state_config_hash_;

@@ -107,8 +107,17 @@ std::string to_json(const RunMetrics& in) {
     w.raw("[" + io::json_number(t.seconds) + ", " + std::to_string(t.iteration) + ", " +
           io::json_number(t.psnr) + "]");
   w.end_array();
+  w.key("trace_views").begin_array();
+  for (const auto& v : m.trace_views) w.raw(io::json_quote(v));
+  w.end_array();
   w.end_object();
   return w.str();
+}
+
+std::string trace_measure(const std::vector<std::string>& views) {
+  if (views.empty()) return "held-out views not recorded";
+  return views.size() == 1 ? "test view " + views.front()
+                           : "mean of " + std::to_string(views.size()) + " test views";
 }
 
 StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
@@ -151,6 +160,14 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
       m.trace.push_back(
           {t.array[0].number, static_cast<int>(t.array[1].number), t.array[2].number});
     }
+  if (const JsonValue* names = doc.find("trace_views"); names && names->is_array())
+    for (const auto& v : names->array) {
+      if (!v.is_string())
+        return Status(StatusCode::kInvalidArgument, "metrics: trace_views must be view names");
+      m.trace_views.push_back(v.string);
+    }
+  if (m.trace_views.empty() && !m.trace.empty() && !m.views.empty())
+    m.trace_views = {m.views.front().name};
   fill_means(m);
   if (std::isnan(m.psnr_mean))
     return Status(StatusCode::kInvalidArgument, "metrics: no \"psnr_mean\" and no views");

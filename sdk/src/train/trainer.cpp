@@ -102,10 +102,25 @@ Trainer::Trainer(TrainOptions options, Dataset dataset, std::shared_ptr<Rasteriz
       model_(std::move(model)),
       gen_(std::move(gen)) {
   for (const auto& v : dataset_.train) train_images_.push_back(image_to_tensor(v.image));
+  trace_view_count_ = int(std::min<size_t>(kMaxTraceViews, dataset_.test.size()));
   model_->set_generator(gen_);  // noise and rate subsets: checkpointed with the trainer's RNG
 }
 
 Trainer::~Trainer() = default;
+
+std::vector<const View*> Trainer::trace_view_ptrs() const {
+  // Evenly spaced, from the first: a count of 1 is the first test view (the older trace).
+  const size_t n = std::min<size_t>(size_t(trace_view_count_), dataset_.test.size());
+  std::vector<const View*> views;
+  for (size_t i = 0; i < n; ++i) views.push_back(&dataset_.test[i * dataset_.test.size() / n]);
+  return views;
+}
+
+std::vector<std::string> Trainer::trace_views() const {
+  std::vector<std::string> names;
+  for (const View* v : trace_view_ptrs()) names.push_back(v->camera.name);
+  return names;
+}
 
 int Trainer::view_for_iteration(int iteration) const {
   // Deterministic from (seed, iteration) alone, so a resumed run sees the same views.
@@ -273,6 +288,7 @@ StatusOr<std::string> Trainer::serialize_state() const {
     for (const auto& p : psnr_trace_)
       trace.insert(trace.end(), {p.seconds, double(p.iteration), p.psnr});
     ar.write("psnr_trace", torch::tensor(trace, torch::kDouble).view({-1, 3}));
+    ar.write("trace_views", torch::tensor(int64_t(trace_view_count_), torch::kLong));
     std::ostringstream os;
     ar.save_to(os);
     return os.str();
@@ -334,7 +350,8 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       return Status(StatusCode::kCorruptBitstream, origin + ": bad iteration in the checkpoint");
     gen_.clone().set_state(rng);  // throws on a malformed state
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
-    torch::Tensor elapsed, trace, build, config, salt, mixed, execution, origin_text, key;
+    torch::Tensor elapsed, trace, build, config, salt, mixed, execution, origin_text, key,
+        trace_count;
     const uint64_t replay_salt =
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
@@ -357,6 +374,17 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
       for (int64_t i = 0; i < acc.size(0); ++i)
         psnr_trace.push_back(
             {acc[i][0].item<double>(), int(acc[i][1].item<double>()), acc[i][2].item<double>()});
+    }
+    // A trace from before the count was recorded is of the first test view alone.
+    int trace_view_count = trace_view_count_;
+    if (ar.try_read("trace_views", trace_count)) {
+      if (trace_count.numel() != 1 || trace_count.item<int64_t>() < 0 ||
+          trace_count.item<int64_t>() > kMaxTraceViews)
+        return Status(StatusCode::kCorruptBitstream,
+                      origin + ": bad trace view count in the checkpoint");
+      if (!psnr_trace.empty()) trace_view_count = int(trace_count.item<int64_t>());
+    } else if (!psnr_trace.empty()) {
+      trace_view_count = 1;
     }
     if (Status st = model_->load_state_dict(state); !st.ok())
       return Status(st.code(), origin + ": " + st.message());
@@ -382,6 +410,7 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     if (!rollback) last_good_iteration_ = -1;
     if (!rollback) elapsed_ = elapsed_seconds;
     psnr_trace_ = std::move(psnr_trace);
+    trace_view_count_ = trace_view_count;
   } catch (const std::exception& e) {
     return Status(StatusCode::kCorruptBitstream, "reading checkpoint " + origin + ": " + e.what());
   }
@@ -535,8 +564,8 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   int last_report_it = iteration_;
   auto last_checkpoint = Clock::now();
   double rate = 0;
-  // The PSNR trace is of a held-out view: none without test views (a train view would flatter).
-  const View* held_out = dataset_.test.empty() ? nullptr : &dataset_.test.front();
+  // The PSNR trace is of held-out views: none without test views (a train view would flatter).
+  const std::vector<const View*> held_out = trace_view_ptrs();
   // The state to roll back to: the last checkpoint, or this starting point (kept in memory).
   if (last_good_iteration_ != iteration_) {
     auto bytes = serialize_state();
@@ -605,10 +634,10 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
     elapsed_ = elapsed_at_start + seconds_since(start) - eval_seconds;
     bool has_psnr = false;
     double psnr = 0;
-    if (held_out && options_.eval_interval > 0 &&
+    if (!held_out.empty() && options_.eval_interval > 0 &&
         (it % options_.eval_interval == 0 || it == sc.iterations)) {
       const auto te = Clock::now();
-      psnr = view_psnr(*held_out);
+      for (const View* v : held_out) psnr += view_psnr(*v) / double(held_out.size());
       has_psnr = true;
       eval_seconds += seconds_since(te);  // the training clock leaves evaluation out
       psnr_trace_.push_back({elapsed_, it, psnr});

@@ -47,7 +47,7 @@ struct ViewMetrics {
 struct TracePoint {
   double seconds = 0;  ///< training wall-clock since the start (excluding evaluation)
   int iteration = 0;
-  double psnr = 0;  ///< dB, the training's held-out view (the first test view), 8-bit round trip
+  double psnr = 0;  ///< dB, mean over RunMetrics::trace_views, 8-bit round trip
 };
 
 struct RunMetrics {
@@ -69,8 +69,14 @@ struct RunMetrics {
   /// Mean of views[].render_seconds (filled from views if NaN).
   double render_seconds_per_view = NAN;
   std::vector<TracePoint> trace;
+  /// The test views the trace averages (Trainer::trace_views). Files from before it was
+  /// recorded traced the first test view alone: read as views[0]'s name.
+  std::vector<std::string> trace_views;
   int64_t peak_memory_bytes = 0;  ///< peak resident set size, see peak_rss_bytes()
 };
+
+/// What a PSNR trace of these test views measures: "test view NAME" or "mean of N test views".
+std::string trace_measure(const std::vector<std::string>& views);
 
 /// Peak resident set size of this process so far (getrusage ru_maxrss), in bytes.
 int64_t peak_rss_bytes();
