@@ -692,19 +692,31 @@ TEST(Trainer, CheckpointsAlsoAfterTheConfiguredMinutes) {
   EXPECT_EQ(later.checkpoints.size(), 1u);
 }
 
-TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
-  Dataset ds = scene(32, 24, 6);
+// 20 iterations, the trace every 5, no periodic checkpoints.
+TrainOptions traced_options(const std::string& name) {
   TrainOptions to;
   to.schedule = tiny_schedule(20);
   to.eval_interval = 5;
   to.checkpoint_interval = 0;
-  to.output_dir = tmp_dir("clock");
-  auto first = trainer(ds, to);
+  to.output_dir = tmp_dir(name);
+  return to;
+}
+
+// Stops `t` at iteration 10, as Ctrl-C would: it writes its checkpoint.
+void stop_at_10(Trainer& t, Recorder& rec) {
   TrainControl control;
-  Recorder rec;
   rec.control = &control;
   rec.stop_at = 10;
-  ASSERT_EQ(first->train(&rec, &control).code(), StatusCode::kCancelled);
+  ASSERT_EQ(t.train(&rec, &control).code(), StatusCode::kCancelled);
+  rec.control = nullptr;
+}
+
+TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
+  Dataset ds = scene(32, 24, 6);
+  const TrainOptions to = traced_options("clock");
+  auto first = trainer(ds, to);
+  Recorder rec;
+  ASSERT_NO_FATAL_FAILURE(stop_at_10(*first, rec));
   ASSERT_EQ(first->psnr_trace().size(), 2u);
   const double spent = first->elapsed_seconds();
   EXPECT_GT(spent, 0);
@@ -761,17 +773,10 @@ TEST(Trainer, ATraceBegunOnTheFirstTestViewAloneStaysOnIt) {
   // the resumed run goes on measuring that view, so its trace stays one measure.
   Dataset ds = scene(32, 24, 14);
   ds.test = ds.train;
-  TrainOptions to;
-  to.schedule = tiny_schedule(20);
-  to.eval_interval = 5;
-  to.checkpoint_interval = 0;
-  to.output_dir = tmp_dir("trace_legacy");
+  const TrainOptions to = traced_options("trace_legacy");
   auto first = trainer(ds, to);
-  TrainControl control;
   Recorder rec;
-  rec.control = &control;
-  rec.stop_at = 10;
-  ASSERT_EQ(first->train(&rec, &control).code(), StatusCode::kCancelled);
+  ASSERT_NO_FATAL_FAILURE(stop_at_10(*first, rec));
   const std::string path = first->checkpoint_path();
   {
     torch::serialize::InputArchive in;
