@@ -41,6 +41,14 @@ extern "C" void on_stop_signal(int) {
 }
 
 /// The last `bytes` of a file ("" if unreadable): enough for a progress bar's last lines.
+// An unfinished run's last held-out PSNR, as its progress line showed it.
+std::string trace_psnr_text(const ProgressLine& p) {
+  if (std::isnan(p.test_psnr)) return "";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "last test PSNR %.2f dB", p.test_psnr);
+  return buf;
+}
+
 std::string file_tail(const std::string& path, std::streamoff bytes = 16384) {
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) return "";
@@ -174,6 +182,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
         std::snprintf(buf, sizeof buf, "%ld/%ld, %s it/s, ETA %s", progress->done, progress->total,
                       format_rate(progress->rate).c_str(), progress->eta.c_str());
         row[2] = buf;
+        row[3] = trace_psnr_text(*progress);
         running_rates[group_of(r.id)].push_back(progress->rate);
       }
       left.push_back({group_of(r.id), iterations_left(progress), true});
@@ -185,6 +194,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
       if (progress) {
         row[2] =
             "last seen " + std::to_string(progress->done) + "/" + std::to_string(progress->total);
+        row[3] = trace_psnr_text(*progress);
         stopped_rates[group_of(r.id)].push_back(progress->rate);
       }
       left.push_back({group_of(r.id), iterations_left(progress)});

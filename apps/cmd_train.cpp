@@ -35,11 +35,11 @@ class CliProgress final : public ProgressCallback {
   CliProgress(int total, int already_done) : bar_("train", total, already_done) {}
   void on_iteration(const TrainingProgress& p) override {
     if (p.has_test_psnr) last_psnr_ = p.test_psnr;
-    char extra[160];
+    char psnr[32] = "-", extra[160];
+    if (last_psnr_ > 0) std::snprintf(psnr, sizeof psnr, "%.2f dB", last_psnr_);
     std::snprintf(extra, sizeof extra, "loss %.4f  test PSNR %s  anchors %lld  gaussians %lld",
-                  p.loss,
-                  last_psnr_ > 0 ? (std::to_string(last_psnr_).substr(0, 5) + " dB").c_str() : "-",
-                  static_cast<long long>(p.anchors), static_cast<long long>(p.gaussians));
+                  p.loss, psnr, static_cast<long long>(p.anchors),
+                  static_cast<long long>(p.gaussians));
     last_extra_ = extra;
     bar_.update(p.iteration, extra);
   }

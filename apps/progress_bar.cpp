@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <sstream>
+#include <utility>
 
 namespace crpgs::cli {
 
@@ -112,6 +113,15 @@ std::optional<ProgressLine> last_progress(const std::string& log, const std::str
       p.total = std::stol(fraction.substr(slash + 1));
       p.rate = std::stod(rate.substr(0, rate.size() - 2));
       p.eta = eta;
+      // The trainer's extras follow the ETA: "loss L  test PSNR X dB  ...".
+      std::string two_back, one_back;
+      while (in >> word) {
+        if (two_back == "test" && one_back == "PSNR") {
+          if (word != "-") p.test_psnr = std::stod(word);
+          break;
+        }
+        two_back = std::exchange(one_back, word);
+      }
       return p;
     } catch (const std::exception&) {
       continue;  // a garbled line (e.g. cut off by a kill)

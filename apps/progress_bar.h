@@ -4,6 +4,7 @@
 #pragma once
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <optional>
 #include <string>
@@ -46,6 +47,8 @@ struct ProgressLine {
   long done = 0, total = 0;
   double rate = 0;  ///< units per second of the process that drew it
   std::string eta;  ///< as drawn ("2h10m", "?")
+  /// `crpgs train`'s last held-out PSNR on the line ("test PSNR 26.16 dB"); NaN when absent.
+  double test_psnr = std::nan("");
 };
 /// The last bar `label` drew in `log` (plain lines or TTY redraws); nullopt if none.
 std::optional<ProgressLine> last_progress(const std::string& log, const std::string& label);

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <string>
 #include <thread>
@@ -74,7 +75,19 @@ TEST(ProgressBar, LastProgressReadsBackWhatTheBarDrew) {
   EXPECT_EQ(p->done, 3310);
   EXPECT_EQ(p->eta, "3h30m");
   EXPECT_DOUBLE_EQ(p->rate, 2.1);
+  EXPECT_TRUE(std::isnan(p->test_psnr));  // this line shows none
   EXPECT_FALSE(last_progress("no bar here\n", "train").has_value());
+  // `crpgs train`'s extras: the held-out PSNR it last measured ("-" before the first).
+  p = last_progress(
+      "train  72% 28644/40000 0.43/s 27m03s ETA 7h22m loss 0.0175  test PSNR "
+      "26.16 dB  anchors 69386  gaussians 195210\n",
+      "train");
+  ASSERT_TRUE(p.has_value());
+  EXPECT_DOUBLE_EQ(p->test_psnr, 26.16);
+  p = last_progress("train   0% 5/40000 1.2/s 4s ETA 9h loss 0.2  test PSNR -  anchors 9\n",
+                    "train");
+  ASSERT_TRUE(p.has_value());
+  EXPECT_TRUE(std::isnan(p->test_psnr));
 }
 
 }  // namespace

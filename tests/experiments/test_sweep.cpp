@@ -606,8 +606,12 @@ TEST(Sweep, StatusShowsEachRunsStateAndProgress) {
       << out;
   EXPECT_NE(out.find("27.456 dB, 2563198 B, trained 5h12m"), std::string::npos) << out;
   EXPECT_NE(out.find("running (pid " + std::to_string(getpid())), std::string::npos) << out;
-  EXPECT_NE(out.find("13030/30000, 0.70 it/s, ETA 6h22m"), std::string::npos) << out;
+  EXPECT_NE(out.find("13030/30000, 0.70 it/s, ETA 6h22m  last test PSNR 27.46 dB"),
+            std::string::npos)
+      << out;
   EXPECT_NE(out.find("last seen 140/40000"), std::string::npos) << out;
+  EXPECT_EQ(out.find("last test PSNR", out.find("last seen 140/40000")), std::string::npos)
+      << out;  // its log never showed one
   // Left: 16,970 + 39,860, one worker at the running run's 0.7 it/s (the stopped one's 5.4 it/s
   // is older, and the running runs' rates win): 81,186 s. The waiting run's schedule is unknown:
   // its config (entropy.lambda for the default entropy model) does not resolve, and it has no log.
