@@ -40,7 +40,6 @@ extern "C" void on_stop_signal(int) {
   g_stop = true;
 }
 
-/// The last `bytes` of a file ("" if unreadable): enough for a progress bar's last lines.
 // An unfinished run's last held-out PSNR, as its progress line showed it.
 std::string trace_psnr_text(const ProgressLine& p) {
   if (std::isnan(p.test_psnr)) return "";
@@ -49,6 +48,7 @@ std::string trace_psnr_text(const ProgressLine& p) {
   return buf;
 }
 
+/// The last `bytes` of a file ("" if unreadable): enough for a progress bar's last lines.
 std::string file_tail(const std::string& path, std::streamoff bytes = 16384) {
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) return "";
