@@ -87,6 +87,10 @@ TEST(Report, TablesHaveRdPointsAndBdRows) {
   EXPECT_NE(md.find("## fern"), std::string::npos);
   // crpgs is the same curve at 0.7x the size: BD-rate exactly -30%.
   EXPECT_NE(md.find("| hac | crpgs | -30.00 |"), std::string::npos) << md;
+  // Each row names the fronts it compared; "far" sits 16 dB above the others, so "—".
+  EXPECT_NE(md.find("| 4 points, 24.000–26.250 dB | 4 points, 40.000–42.250 dB |"),
+            std::string::npos)
+      << md;
   // "far" never overlaps: no result either way.
   EXPECT_NE(md.find("| hac | far | — | — |"), std::string::npos) << md;
   EXPECT_NE(md.find("| crpgs | far | — | — |"), std::string::npos) << md;
@@ -103,6 +107,19 @@ TEST(Report, TablesHaveRdPointsAndBdRows) {
   EXPECT_EQ(md.find("![rd_"), std::string::npos);  // no plots asked for
   const std::string html = read_text(out->html);
   EXPECT_NE(html.find("<td>-30.00</td>"), std::string::npos);
+}
+
+TEST(Report, ABdRowWithoutResultShowsTheShortFront) {
+  const std::string runs = make_fixture("short_front");
+  for (int i = 1; i < 4; ++i) fs::remove_all(runs + "/fern/hac/lambda-" + std::to_string(i));
+  ReportOptions opt;
+  opt.plots = false;
+  auto out = write_report({runs}, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  const std::string md = read_text(out->markdown);
+  EXPECT_NE(md.find("| hac | crpgs | — | — | 1 point, 24.000 dB | 4 points, 24.000–26.250 dB |"),
+            std::string::npos)
+      << md;
 }
 
 bool is_png(const std::string& bytes) {

@@ -125,6 +125,17 @@ std::vector<RdPoint> rd_points(const std::vector<const ReportRun*>& runs) {
   return p;
 }
 
+/// What of a curve BD-rate uses: its non-dominated points and their PSNR range, so that a "—"
+/// in the BD table says which curve is too short or where the ranges miss each other.
+std::string front_text(const std::vector<RdPoint>& points) {
+  const auto front = pareto_front(points);
+  if (front.empty()) return "no points";
+  const std::string n =
+      std::to_string(front.size()) + (front.size() == 1 ? " point, " : " points, ");
+  if (front.size() == 1) return n + fmt("%.3f dB", front[0].psnr);
+  return n + fmt("%.3f", front.front().psnr) + "–" + fmt("%.3f dB", front.back().psnr);
+}
+
 /// Draws plots with gnuplot: data files and scripts in a scratch dir, each PNG rendered there
 /// and then moved into place with write_file_atomic.
 class Plotter {
@@ -558,7 +569,8 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       "BD-rate: average size change of *test* against *anchor* at equal PSNR (negative is "
       "smaller); BD-PSNR: average PSNR gain at equal size. Dominated points are removed, a PCHIP "
       "is fitted on log(size), and the difference is averaged over the common interval; — means "
-      "no common interval (or fewer than 2 points).\n\n";
+      "no common interval (or fewer than 2 points); the fronts are the non-dominated points each "
+      "curve keeps, with their PSNR range.\n\n";
 
   FileNames dataset_files, breakdown_files;
   for (const auto& g : groups) {
@@ -579,7 +591,8 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
     html_body += html_table(rd);
 
     if (g.methods.size() >= 2) {
-      Table bd = {{"anchor", "test", "BD-rate (%)", "BD-PSNR (dB)"}};
+      Table bd = {
+          {"anchor", "test", "BD-rate (%)", "BD-PSNR (dB)", "anchor's front", "test's front"}};
       for (size_t a = 0; a < g.methods.size(); ++a)
         for (size_t t = a + 1; t < g.methods.size(); ++t) {
           const auto pa = rd_points(g.by_method.at(g.methods[a]));
@@ -587,7 +600,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
           const auto rate = bd_rate(pa, pt);
           const auto psnr = bd_psnr(pa, pt);
           bd.push_back({g.methods[a], g.methods[t], rate ? fmt("%+.2f", *rate) : "—",
-                        psnr ? fmt("%+.3f", *psnr) : "—"});
+                        psnr ? fmt("%+.3f", *psnr) : "—", front_text(pa), front_text(pt)});
         }
       md += "### BD-rate and BD-PSNR\n\n" + bd_note + md_table(bd);
       html_body +=
