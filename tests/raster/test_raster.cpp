@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "crpgs/schema.h"
+#include "raster/cpu_rasterizer.h"
 #include "raster/raster_test_util.h"
 #include "raster/stages.h"
 
@@ -18,13 +19,6 @@ namespace crpgs::raster {
 namespace {
 
 using namespace crpgs::raster::test_util;
-
-RenderSettings settings_with(bool depth, std::array<float, 3> bg = {0.1f, 0.3f, 0.7f}) {
-  RenderSettings s;
-  s.background = bg;
-  s.render_depth = depth;
-  return s;
-}
 
 // ---- Correctness on random scenes -------------------------------------------------------
 
@@ -152,76 +146,35 @@ TEST(RasterThreads, OneAndTwoThreadsGiveIdenticalResults) {
 // ---- Numerical edge cases (each also against the reference) ----------------------------
 
 TEST(RasterStability, BehindCameraAndStraddlingNearPlane) {
-  const Camera cam = make_camera(48, 40);
-  Scene s = random_scene(12, 31, cam);
-  // 0: behind, 1: exactly at z = 0, 2: just in front of the near plane with a huge footprint,
-  // 3: just behind the near plane, 4: in front but its 3D extent crosses z = 0.
-  const double zs[] = {-2.0, 0.0, 0.02, 0.009, 0.5};
-  const double sc[] = {0.3, 0.3, 0.05, 0.05, 2.0};
-  for (int i = 0; i < 5; ++i) {
-    const Eigen::Vector3d w = world_at_pixel(cam, 20, 15, zs[i]);
-    const Eigen::Vector3d wz = to_world(cam, Eigen::Vector3d(0.01, -0.02, zs[i]));
-    const Eigen::Vector3d p = zs[i] == 0.0 ? wz : w;
-    set_row(s.means, i, {p.x(), p.y(), p.z()});
-    set_row(s.scales, i, {sc[i], sc[i] * 0.5, sc[i]});
-  }
-  s.opacities[2] = 0.3f;
-  const Weights wt = random_weights(cam.width, cam.height, 3);
-  const RenderRun fast = run(s, cam, settings_with(true), wt, false);
+  const HardCase h = near_plane_case();
+  const Weights wt = random_weights(h.cam.width, h.cam.height, 3);
+  const RenderRun fast = run(h.scene, h.cam, h.settings, wt, false);
   EXPECT_EQ(fast.out.radii[0].item<int>(), 0);
   EXPECT_EQ(fast.out.radii[1].item<int>(), 0);
   EXPECT_GT(fast.out.radii[2].item<int>(), 0);
   EXPECT_EQ(fast.out.radii[3].item<int>(), 0);
   EXPECT_GT(fast.out.radii[4].item<int>(), 0);
   EXPECT_EQ(max_abs(fast.grads.means[0]), 0.0);
-  expect_matches_reference(s, cam, settings_with(true), "near plane");
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 TEST(RasterStability, ExtremelySmallAndLargeScales) {
-  const Camera cam = make_camera(40, 36);
-  Scene s = random_scene(20, 41, cam);
-  set_row(s.scales, 0, {1e-9, 1e-9, 1e-9});
-  set_row(s.scales, 1, {1e-12, 0.05, 1e-12});
-  set_row(s.scales, 2, {50.0, 40.0, 60.0});  // covers the whole image
-  set_row(s.scales, 3, {1e4, 1e-6, 1e3});
-  s.opacities[2] = 0.2f;
-  s.opacities[3] = 0.1f;
-  expect_matches_reference(s, cam, settings_with(false), "extreme scales");
+  const HardCase h = extreme_scales_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 TEST(RasterStability, NearSingularAndDegenerate2DCovariances) {
-  const Camera cam = make_camera(40, 32);
-  Scene s = random_scene(16, 51, cam);
-  // Needles along the viewing ray and flat discs seen edge-on (identity rotation, camera R is
-  // close to identity): before the 0.3 dilation their 2D covariances are (nearly) singular.
-  set_row(s.rotations, 0, {1, 0, 0, 0});
-  set_row(s.scales, 0, {1e-7, 1e-7, 0.8});
-  set_row(s.rotations, 1, {1, 0, 0, 0});
-  set_row(s.scales, 1, {0.5, 1e-8, 0.5});
-  set_row(s.rotations, 2, {0, 0, 0, 1});
-  set_row(s.scales, 2, {0.0, 0.0, 0.0});  // a point: the dilation alone
-  set_row(s.rotations, 3, {0.7071, 0.7071, 0, 0});
-  set_row(s.scales, 3, {0.3, 1e-9, 1e-9});
-  expect_matches_reference(s, cam, settings_with(true), "degenerate covariances");
+  const HardCase h = degenerate_covariances_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 TEST(RasterStability, HugeNeedlesAcrossTheImageKeepAnAccurateConic) {
-  // Needles in the image plane, diagonal to the pixel axes, σ from 1e5 to 1e9 px: the 2D
-  // covariance is 0.3·I + σ²·w·wᵀ, so its inverse's largest eigenvalue is 1/0.3 whatever σ
-  // (and never more for any Gaussian). c00·c11 − c01² loses that to cancellation from σ² ≈ 1e14.
-  const Camera cam = make_camera(40, 32);
-  Scene s = random_scene(16, 53, cam);
-  const double c8 = std::cos(M_PI / 8), s8 = std::sin(M_PI / 8);
-  const double lengths[] = {1e4, 1e5, 1e6, 1e7, 1e8};
-  for (int i = 0; i < 5; ++i) {
-    const Eigen::Vector3d w = world_at_pixel(cam, 12 + 4 * i, 10 + 3 * i, 3.0);
-    set_row(s.means, i, {w.x(), w.y(), w.z()});
-    set_row(s.rotations, i, {c8, 0, 0, i % 2 ? s8 : -s8});  // x axis to ±45° in the image
-    set_row(s.scales, i, {lengths[i], 1e-9, 1e-9});
-    s.opacities[i] = 0.05f;
-  }
-  const ProjectResult pr =
-      project_forward(s.means, s.scales, s.rotations, cam, settings_with(false), 2);
+  // The 2D covariance is 0.3·I + σ²·w·wᵀ, so its inverse's largest eigenvalue is 1/0.3 whatever
+  // σ (and never more for any Gaussian). c00·c11 − c01² loses that to cancellation from
+  // σ² ≈ 1e14.
+  const HardCase h = huge_needles_case(kNeedleLengths[4]);
+  const Scene& s = h.scene;
+  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, h.cam, h.settings, 2);
   auto con = pr.conics.accessor<float, 2>();
   auto rad = pr.radii.accessor<int32_t, 1>();
   const double bound = 1.0 / 0.3;
@@ -232,65 +185,46 @@ TEST(RasterStability, HugeNeedlesAcrossTheImageKeepAnAccurateConic) {
     EXPECT_GT(a, 0.0) << "gaussian " << i;
     EXPECT_GT(c, 0.0) << "gaussian " << i;
     if (i < 5) {
-      EXPECT_NEAR(lmax / bound, 1.0, 1e-5) << "needle " << i << " of length " << lengths[i];
+      EXPECT_NEAR(lmax / bound, 1.0, 1e-5) << "needle " << i << " of length " << kNeedleLengths[i];
     } else {
       EXPECT_LE(lmax, bound * (1 + 1e-5)) << "gaussian " << i;
     }
   }
   // The render matches the reference for every length. Gradients through the conic cancel
   // terms of size σ² in double, on both sides, so they are compared up to σ ≈ 1e6 px.
-  const Weights wt = random_weights(cam.width, cam.height, 5);
-  const RenderRun fast = run(s, cam, settings_with(false), wt, false);
-  const RenderRun ref = run(s, cam, settings_with(false), wt, true);
-  expect_finite(fast, "huge needles");
-  expect_forward_close(fast, ref, "huge needles");
-  for (int i = 2; i < 5; ++i) s.scales[i][0] = lengths[1];
-  expect_matches_reference(s, cam, settings_with(false), "long needles");
+  const Weights wt = random_weights(h.cam.width, h.cam.height, 5);
+  const RenderRun fast = run(s, h.cam, h.settings, wt, false);
+  const RenderRun ref = run(s, h.cam, h.settings, wt, true);
+  expect_finite(fast, h.name);
+  expect_forward_close(fast, ref, h.name);
+  const HardCase capped = huge_needles_case(kNeedleLengths[1]);
+  expect_matches_reference(capped.scene, capped.cam, capped.settings, capped.name);
 }
 
 TEST(RasterStability, UnnormalisedAndZeroQuaternions) {
-  const Camera cam = make_camera(40, 32);
-  Scene s = random_scene(16, 61, cam, 4.0);
-  set_row(s.rotations, 0, {0, 0, 0, 0});
-  set_row(s.rotations, 1, {200.0, -150.0, 30.0, 80.0});
-  set_row(s.rotations, 2, {1e-5, 2e-5, -1e-5, 3e-6});
-  set_row(s.rotations, 3, {0, 0, 0, 3.0});
-  expect_matches_reference(s, cam, settings_with(false), "quaternions");
-  const RenderRun fast = run(s, cam, settings_with(false), random_weights(40, 32, 1), false);
+  const HardCase h = quaternions_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
+  const RenderRun fast = run(h.scene, h.cam, h.settings, random_weights(40, 32, 1), false);
   // The zero quaternion renders as the identity and gets no rotation gradient.
   EXPECT_GT(fast.out.radii[0].item<int>(), 0);
   EXPECT_EQ(max_abs(fast.grads.rotations[0]), 0.0);
 }
 
 TEST(RasterStability, OpacityZeroAndNearOne) {
-  const Camera cam = make_camera(40, 32);
-  Scene s = random_scene(20, 71, cam, 4.0);
-  s.opacities[0] = 0.f;
-  s.opacities[1] = 0.9999f;
-  s.opacities[2] = 1.f;
-  s.opacities[3] = 1e-3f;  // below 1/255 everywhere
-  expect_matches_reference(s, cam, settings_with(true), "opacity");
-  const RenderRun fast = run(s, cam, settings_with(true), random_weights(40, 32, 2), false);
+  const HardCase h = opacity_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
+  const RenderRun fast = run(h.scene, h.cam, h.settings, random_weights(40, 32, 2), false);
   EXPECT_EQ(max_abs(fast.grads.colors[0]), 0.0);
   EXPECT_EQ(max_abs(fast.grads.colors[3]), 0.0);
 }
 
 TEST(RasterStability, TransmittanceReachesTerminationThreshold) {
-  // Four large opaque layers over the image: alpha 0.95 each gives T = 0.05^3 = 1.25e-4 after
-  // three, and the fourth would take it below 1e-4, so every pixel stops after three.
-  const Camera cam = make_camera(32, 32);
-  Scene s = empty_scene(6);
-  for (int i = 0; i < 6; ++i) {
-    const Eigen::Vector3d p = world_at_pixel(cam, 16.3, 15.8, 2.0 + 0.5 * i);
-    set_row(s.means, i, {p.x(), p.y(), p.z()});
-    set_row(s.scales, i, {30.0, 30.0, 0.01});
-    set_row(s.colors, i, {0.2 * i, 1.0 - 0.15 * i, 0.5});
-    s.opacities[i] = 0.95f;
-  }
-  const RenderSettings st = settings_with(true);
-  expect_matches_reference(s, cam, st, "termination");
+  const HardCase h = termination_case();
+  const Scene& s = h.scene;
+  const RenderSettings& st = h.settings;
+  expect_matches_reference(s, h.cam, st, h.name);
   // Through the stages: last contributor and final transmittance at the centre.
-  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, cam, st, 1);
+  const ProjectResult pr = project_forward(s.means, s.scales, s.rotations, h.cam, st, 1);
   const TileIntersections is = intersect_tiles(pr.means2d, pr.radii, pr.depths, 32, 32, 1);
   const RasterizeResult rr = rasterize_forward(pr.means2d, pr.conics, s.opacities, s.colors,
                                                pr.depths, is, 32, 32, st.background, true, 1);
@@ -303,53 +237,30 @@ TEST(RasterStability, TransmittanceReachesTerminationThreshold) {
 }
 
 TEST(RasterStability, GaussiansExactlyOnTileBorders) {
-  const Camera cam = make_camera(64, 48);
-  Scene s = random_scene(12, 81, cam);
-  // Means exactly on tile corners / edges in pixel coordinates.
-  const double px[][2] = {{16, 16}, {32, 16}, {48, 32}, {16, 40.5}, {0, 0}, {64, 48}};
-  for (int i = 0; i < 6; ++i) {
-    const Eigen::Vector3d p = world_at_pixel(cam, px[i][0], px[i][1], 3.0);
-    set_row(s.means, i, {p.x(), p.y(), p.z()});
-  }
-  expect_matches_reference(s, cam, settings_with(true), "tile borders");
+  const HardCase h = tile_borders_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 TEST(RasterStability, OnePixelAndOddImageSizes) {
-  for (const auto& wh : {std::pair<int, int>{1, 1}, {17, 33}, {33, 17}, {15, 1}}) {
-    Camera cam = make_camera(wh.first, wh.second);
-    const Scene s = random_scene(20, 91, cam, 2.0);
-    expect_matches_reference(s, cam, settings_with(true),
-                             std::to_string(wh.first) + "x" + std::to_string(wh.second));
-  }
+  for (const HardCase& h : odd_size_cases())
+    expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 TEST(RasterStability, EmptySetOfGaussians) {
-  const Camera cam = make_camera(20, 12);
-  const Scene s = empty_scene(0);
-  const RenderSettings st = settings_with(true, {0.25f, 0.5f, 1.f});
-  const RenderRun fast = run(s, cam, st, random_weights(20, 12, 4), false);
+  const HardCase h = empty_case();
+  const RenderRun fast = run(h.scene, h.cam, h.settings, random_weights(20, 12, 4), false);
   EXPECT_EQ(fast.out.image.sizes(), (std::vector<int64_t>{12, 20, 3}));
   EXPECT_EQ(max_abs(fast.out.image.select(2, 0) - 0.25), 0.0);
   EXPECT_EQ(max_abs(fast.out.image.select(2, 2) - 1.0), 0.0);
   EXPECT_EQ(max_abs(fast.out.alpha), 0.0);
   EXPECT_EQ(max_abs(fast.out.depth), 0.0);
   EXPECT_EQ(fast.grads.means.sizes(), (std::vector<int64_t>{0, 3}));
-  expect_finite(fast, "empty");
+  expect_finite(fast, h.name);
 }
 
 TEST(RasterStability, ThousandsOfGaussiansOnOnePixel) {
-  // 3000 faint Gaussians around the same pixel: long per-pixel lists, late termination.
-  const Camera cam = make_camera(24, 20);
-  Scene s = random_scene(3000, 101, cam, 3.0);
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<double> U(0, 1);
-  auto o = s.opacities.accessor<float, 1>();
-  for (int64_t i = 0; i < s.size(); ++i) {
-    const Eigen::Vector3d p = world_at_pixel(cam, 11.5 + U(rng), 9.5 + U(rng), 2 + 3 * U(rng));
-    set_row(s.means, i, {p.x(), p.y(), p.z()});
-    o[i] = float(0.004 + 0.01 * U(rng));
-  }
-  expect_matches_reference(s, cam, settings_with(true), "crowded pixel");
+  const HardCase h = crowded_pixel_case();
+  expect_matches_reference(h.scene, h.cam, h.settings, h.name);
 }
 
 // ---- Stages on their own --------------------------------------------------------------

@@ -4,6 +4,9 @@
 
 #include "crpgs/plugin.h"
 #include "raster/cpu_rasterizer.h"
+#if CRPGS_BUILT_WITH_CUDA
+#include "raster/cuda_rasterizer.h"
+#endif
 
 namespace crpgs {
 namespace {
@@ -41,7 +44,11 @@ std::shared_ptr<FeatureModel> identity_feature_model(int feature_dim) {
 
 ComponentRegistry builtin_registry() {
   ComponentRegistry r;
-  for (auto* d : {cpu_rasterizer_descriptor(), identity_features_descriptor()}) {
+  for (auto* d : {cpu_rasterizer_descriptor(),
+#if CRPGS_BUILT_WITH_CUDA
+                  cuda_rasterizer_descriptor(),
+#endif
+                  identity_features_descriptor()}) {
     Status st = r.add_builtin(d);
     if (!st.ok()) throw StatusError(st);  // a broken built-in is a programming error
   }

@@ -55,30 +55,6 @@ void check_float(const at::Tensor& t, const char* name, int64_t cols) {
   }
 }
 
-// The camera as the projection kernels take it, in double; the tan limits clamp x/z for the
-// Jacobian as 3DGS and gsplat do.
-kernels::ProjectCamera make_cam(const Camera& c, const RenderSettings& s) {
-  TORCH_CHECK(c.width > 0 && c.height > 0 && c.fx > 0 && c.fy > 0,
-              "rasterizer: camera needs positive size and focal lengths");
-  kernels::ProjectCamera d;
-  for (int r = 0; r < 3; ++r) {
-    for (int k = 0; k < 3; ++k) d.R[r][k] = c.R(r, k);
-    d.t[r] = c.t[r];
-  }
-  d.fx = c.fx;
-  d.fy = c.fy;
-  d.cx = c.cx;
-  d.cy = c.cy;
-  d.near_plane = s.near_plane;
-  d.far_plane = s.far_plane;
-  const double tan_x = 0.5 * c.width / c.fx, tan_y = 0.5 * c.height / c.fy;
-  d.lim_x_pos = (c.width - c.cx) / c.fx + 0.3 * tan_x;
-  d.lim_x_neg = c.cx / c.fx + 0.3 * tan_x;
-  d.lim_y_pos = (c.height - c.cy) / c.fy + 0.3 * tan_y;
-  d.lim_y_neg = c.cy / c.fy + 0.3 * tan_y;
-  return d;
-}
-
 using kernels::Packed;
 
 std::vector<Packed> pack_all(const at::Tensor& means2d, const at::Tensor& conics,
@@ -195,6 +171,28 @@ int resolve_threads(int requested) {
 #endif
 }
 
+kernels::ProjectCamera project_camera(const Camera& c, const RenderSettings& s) {
+  TORCH_CHECK(c.width > 0 && c.height > 0 && c.fx > 0 && c.fy > 0,
+              "rasterizer: camera needs positive size and focal lengths");
+  kernels::ProjectCamera d;
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) d.R[r][k] = c.R(r, k);
+    d.t[r] = c.t[r];
+  }
+  d.fx = c.fx;
+  d.fy = c.fy;
+  d.cx = c.cx;
+  d.cy = c.cy;
+  d.near_plane = s.near_plane;
+  d.far_plane = s.far_plane;
+  const double tan_x = 0.5 * c.width / c.fx, tan_y = 0.5 * c.height / c.fy;
+  d.lim_x_pos = (c.width - c.cx) / c.fx + 0.3 * tan_x;
+  d.lim_x_neg = c.cx / c.fx + 0.3 * tan_x;
+  d.lim_y_pos = (c.height - c.cy) / c.fy + 0.3 * tan_y;
+  d.lim_y_neg = c.cy / c.fy + 0.3 * tan_y;
+  return d;
+}
+
 TileRect tile_rect(float mx, float my, int radius, int tiles_x, int tiles_y) {
   const double r = radius;
   TileRect t;
@@ -214,7 +212,7 @@ ProjectResult project_forward(const at::Tensor& means, const at::Tensor& scales,
   const int64_t n = means.size(0);
   TORCH_CHECK(scales.size(0) == n && rotations.size(0) == n,
               "rasterizer: means, scales and rotations must have the same N");
-  const kernels::ProjectCamera cam = make_cam(camera, settings);
+  const kernels::ProjectCamera cam = project_camera(camera, settings);
   const int tiles_x = tile_count(camera.width);
   const int tiles_y = tile_count(camera.height);
   const auto fopt = means.options();
@@ -260,7 +258,7 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
   RenderSettings s;  // culling is read from fwd.radii; near/far are not needed here
   s.near_plane = -std::numeric_limits<float>::infinity();
   s.far_plane = std::numeric_limits<float>::infinity();
-  const kernels::ProjectCamera cam = make_cam(camera, s);
+  const kernels::ProjectCamera cam = project_camera(camera, s);
   ProjectGrads g;
   g.v_means = at::zeros({n, 3}, means.options());
   g.v_scales = at::zeros({n, 3}, means.options());

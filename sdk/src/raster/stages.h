@@ -17,11 +17,16 @@
 #include "crpgs/camera.h"
 #include "crpgs/rasterizer.h"
 #include "raster/constants.h"
+#include "raster/project_kernels.h"
 
 namespace crpgs::raster {
 
 /// Threads to use: `requested` > 0 as given, otherwise all available processors.
 int resolve_threads(int requested);
+
+/// The camera as the projection kernels take it (CPU and CUDA), in double; the tan limits clamp
+/// x/z for the Jacobian as 3DGS and gsplat do.
+kernels::ProjectCamera project_camera(const Camera& camera, const RenderSettings& settings);
 
 struct ProjectResult {
   at::Tensor means2d;  // [N, 2] float32, pixels
