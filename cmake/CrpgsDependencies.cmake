@@ -1,5 +1,6 @@
 # Every third-party dependency, all from Debian 12 packages (scripts/setup installs them).
 find_package(Torch REQUIRED)                   # libtorch-dev 1.13.1 (CPU)
+crpgs_torch_headers_as_system()              # CrpgsWarnings.cmake
 find_package(Eigen3 3.3 REQUIRED NO_MODULE)    # libeigen3-dev
 find_package(yaml-cpp REQUIRED)                # libyaml-cpp-dev 0.7: target is `yaml-cpp`
 find_package(draco REQUIRED)                   # libdraco-dev

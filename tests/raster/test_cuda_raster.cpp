@@ -24,8 +24,8 @@ using namespace crpgs::raster::test_util;
 
 #if CRPGS_BUILT_WITH_CUDA
 
-#define CRPGS_REQUIRE_GPU()                                                                   \
-  if (!torch::cuda::is_available()) {                                                         \
+#define CRPGS_REQUIRE_GPU()                                                                     \
+  if (!torch::cuda::is_available()) {                                                           \
     GTEST_SKIP() << "no CUDA device: libtorch sees none (CPU-only libtorch, no GPU or driver)"; \
   }
 
@@ -53,11 +53,12 @@ void expect_gpu_matches_cpu(const Scene& s, const Camera& cam, const RenderSetti
       grad_err = std::max(grad_err, rel_error(gpu.grads.*field, cpu.grads.*field));
     }
   }
-  std::printf("[ parity ] %-28s N=%-7lld %4dx%-4d forward max|d| %.3g, image bit-equal %s, "
-              "gradient max rel %.3g\n",
-              what.c_str(), static_cast<long long>(s.size()), cam.width, cam.height,
-              max_abs(gpu.out.image - cpu.out.image),
-              at::equal(gpu.out.image, cpu.out.image) ? "yes" : "no", grad_err);
+  std::printf(
+      "[ parity ] %-28s N=%-7lld %4dx%-4d forward max|d| %.3g, image bit-equal %s, "
+      "gradient max rel %.3g\n",
+      what.c_str(), static_cast<long long>(s.size()), cam.width, cam.height,
+      max_abs(gpu.out.image - cpu.out.image),
+      at::equal(gpu.out.image, cpu.out.image) ? "yes" : "no", grad_err);
 }
 
 TEST(CudaRaster, RandomScenesMatchTheCpu) {
@@ -73,8 +74,8 @@ TEST(CudaRaster, RandomScenesMatchTheCpu) {
                         Case{256, 192, 5000, 5, true, 4}, Case{300, 200, 20000, 6, false, 8}}) {
     const Camera cam = make_camera(c.w, c.h);
     const Scene s = random_scene(c.n, c.seed, cam, c.size_px);
-    expect_gpu_matches_cpu(s, cam, settings_with(c.depth), "random " + std::to_string(c.n),
-                           true, c.seed + 1);
+    expect_gpu_matches_cpu(s, cam, settings_with(c.depth), "random " + std::to_string(c.n), true,
+                           c.seed + 1);
   }
 }
 
@@ -102,8 +103,8 @@ TEST(CudaRaster, StagesGiveTheCpuTileListsAndTermination) {
     const Scene& s = h.scene;
     const Camera& cam = h.cam;
     const ProjectResult pc = project_forward(s.means, s.scales, s.rotations, cam, st, 1);
-    const ProjectResult pg = cuda::project_forward(s.means.to(kGpu), s.scales.to(kGpu),
-                                                   s.rotations.to(kGpu), cam, st);
+    const ProjectResult pg =
+        cuda::project_forward(s.means.to(kGpu), s.scales.to(kGpu), s.rotations.to(kGpu), cam, st);
     EXPECT_TRUE(at::equal(pc.radii, pg.radii.cpu())) << h.name;
     EXPECT_LE(max_abs(pc.means2d - pg.means2d.cpu()), 1e-4) << h.name;
     EXPECT_LE(rel_error(pg.conics.cpu(), pc.conics), 1e-6) << h.name;
@@ -158,6 +159,43 @@ TEST(CudaRaster, VisibleAnchorsMatchTheCpu) {
   EXPECT_TRUE(at::equal(vc, vg.cpu()));
   EXPECT_GT(vc.sum().item<int64_t>(), 500);  // at most 1,066 are left in the frustum
   EXPECT_LT(vc.sum().item<int64_t>(), 1500);
+}
+
+// A model kept on the CPU rendering on the GPU (what the `cuda` component does): outputs come
+// back to the CPU, bit-equal to the CPU rasterizer's, and gradients reach the CPU leaves.
+TEST(CudaRaster, BridgesGaussiansKeptOnTheCpu) {
+  CRPGS_REQUIRE_GPU();
+  const Camera cam = make_camera(120, 90);
+  const Scene s = random_scene(800, 151, cam, 5.0);
+  const RenderSettings st = settings_with(true);
+  const Weights w = random_weights(cam.width, cam.height, 152);
+  auto leaves = [&] {
+    GaussianBatch g{s.means.clone(),     s.scales.clone(), s.rotations.clone(),
+                    s.opacities.clone(), s.colors.clone(), at::zeros({s.size(), 2})};
+    for (at::Tensor* t :
+         {&g.means, &g.scales, &g.rotations, &g.opacities, &g.colors, &g.means2d_grad_holder})
+      t->requires_grad_(true);
+    return g;
+  };
+  const GaussianBatch on_cpu = leaves(), bridged = leaves();
+  const RenderOutput a = render(on_cpu, cam, st, torch::kCPU, resolve_threads(0));
+  const RenderOutput b = render_bridged(bridged, cam, st, kGpu, 1);
+  ASSERT_TRUE(b.image.device().is_cpu());
+  ASSERT_TRUE(b.radii.device().is_cpu());
+  EXPECT_TRUE(at::equal(a.image, b.image));
+  EXPECT_TRUE(at::equal(a.alpha, b.alpha));
+  EXPECT_TRUE(at::equal(a.radii, b.radii));
+  loss_of(a, w, true).backward();
+  loss_of(b, w, true).backward();
+  for (const auto field :
+       {&GaussianBatch::means, &GaussianBatch::scales, &GaussianBatch::rotations,
+        &GaussianBatch::opacities, &GaussianBatch::colors, &GaussianBatch::means2d_grad_holder}) {
+    const at::Tensor& ga = (on_cpu.*field).grad();
+    const at::Tensor& gb = (bridged.*field).grad();
+    ASSERT_TRUE(gb.defined() && gb.device().is_cpu());
+    EXPECT_GT(max_abs(ga), 0.0);
+    EXPECT_LE(rel_error(gb, ga), 1e-3);
+  }
 }
 
 TEST(CudaRaster, RejectsCpuTensors) {

@@ -2,6 +2,8 @@
 /// @brief Built-in components (rasterizers, identity feature model) and typed creation helpers.
 #include "crpgs/components.h"
 
+#include <vector>
+
 #include "crpgs/plugin.h"
 #include "raster/cpu_rasterizer.h"
 #if CRPGS_BUILT_WITH_CUDA
@@ -44,11 +46,12 @@ std::shared_ptr<FeatureModel> identity_feature_model(int feature_dim) {
 
 ComponentRegistry builtin_registry() {
   ComponentRegistry r;
-  for (auto* d : {cpu_rasterizer_descriptor(),
+  std::vector<const crpgs_plugin_descriptor*> builtins = {cpu_rasterizer_descriptor(),
+                                                          identity_features_descriptor()};
 #if CRPGS_BUILT_WITH_CUDA
-                  cuda_rasterizer_descriptor(),
+  builtins.push_back(cuda_rasterizer_descriptor());
 #endif
-                  identity_features_descriptor()}) {
+  for (const crpgs_plugin_descriptor* d : builtins) {
     Status st = r.add_builtin(d);
     if (!st.ok()) throw StatusError(st);  // a broken built-in is a programming error
   }
@@ -60,8 +63,10 @@ crpgs_create_args create_args_for(const Config& resolved) {
   const YAML::Node model = resolved.section("model");
   a.feature_dim = model && model["feature_dim"] ? model["feature_dim"].as<int>() : 50;
   a.n_offsets = model && model["n_offsets"] ? model["n_offsets"].as<int>() : 10;
-  const YAML::Node r = resolved.section("rasterizer");
-  a.device_cuda = r && r["type"] && r["type"].as<std::string>() == "cuda" ? 1 : 0;
+  // The model's tensors stay on the CPU whatever the rasterizer: the `cuda` one moves each batch
+  // to its GPU and the results back (cuda_rasterizer.h). A model on the GPU is issue #7's next
+  // step; then this follows a training device, not the rasterizer.
+  a.device_cuda = 0;
   a.coded_dim = a.feature_dim;  // the feature model may shrink it (SFA): set after creating it
   return a;
 }

@@ -54,7 +54,7 @@ YAML::Node CudaRasterizer::hyperparams() const {
 
 RenderOutput CudaRasterizer::render(const GaussianBatch& g, const Camera& camera,
                                     const RenderSettings& settings) {
-  return raster::render(g, camera, settings, device(), 0);
+  return render_bridged(g, camera, settings, device(), 0);
 }
 
 torch::Tensor CudaRasterizer::visible_anchors(const torch::Tensor& positions,
@@ -66,7 +66,7 @@ torch::Tensor CudaRasterizer::visible_anchors(const torch::Tensor& positions,
               "cuda rasterizer: anchor extents must be [N, 3]");
   const at::Tensor p = positions.detach().to(device(), at::kFloat).contiguous();
   const at::Tensor e = extents.detach().to(device(), at::kFloat).contiguous();
-  return cuda::visible_anchors(p, e, camera, settings);
+  return cuda::visible_anchors(p, e, camera, settings).to(positions.device());
 }
 
 }  // namespace raster

@@ -1,6 +1,9 @@
 /// @file cuda_rasterizer.h
 /// @brief The built-in `cuda` rasterizer (builds with CRPGS_CUDA_ENABLED): the CUDA stages of
 /// raster/cuda behind the same autograd function as `cpu` (render.h), and its descriptor.
+/// Gaussians on the CPU are moved to the GPU for rendering and the outputs (and the prefilter's
+/// mask) come back to the CPU, so a model that stays on the CPU renders on the GPU; Gaussians
+/// already on the GPU stay there.
 #pragma once
 
 #include <string>

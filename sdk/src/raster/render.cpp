@@ -27,16 +27,16 @@ TileIntersections intersect(const ProjectResult& pr, const at::Tensor& opac, con
                             int nt) {
 #if CRPGS_BUILT_WITH_CUDA
   if (opac.is_cuda())
-    return cuda::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height,
-                                 pr.conics, opac);
+    return cuda::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, pr.conics,
+                                 opac);
 #endif
   return intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, nt, pr.conics,
                          opac);
 }
 
-RasterizeResult rasterize(const ProjectResult& pr, const at::Tensor& opac,
-                          const at::Tensor& colors, const TileIntersections& is,
-                          const Camera& cam, const RenderSettings& s, int nt) {
+RasterizeResult rasterize(const ProjectResult& pr, const at::Tensor& opac, const at::Tensor& colors,
+                          const TileIntersections& is, const Camera& cam, const RenderSettings& s,
+                          int nt) {
 #if CRPGS_BUILT_WITH_CUDA
   if (opac.is_cuda())
     return cuda::rasterize_forward(pr.means2d, pr.conics, opac, colors, pr.depths, is, cam.width,
@@ -70,8 +70,8 @@ ProjectGrads project_grads(const at::Tensor& means, const at::Tensor& scales,
     return cuda::project_backward(means, scales, rotations, cam, pr, rg.v_means2d, rg.v_conics,
                                   rg.v_depths);
 #endif
-  return project_backward(means, scales, rotations, cam, pr, rg.v_means2d, rg.v_conics,
-                          rg.v_depths, nt);
+  return project_backward(means, scales, rotations, cam, pr, rg.v_means2d, rg.v_conics, rg.v_depths,
+                          nt);
 }
 
 using torch::autograd::AutogradContext;
@@ -208,8 +208,8 @@ void check_input(const torch::Tensor& t, const char* name, int64_t n, int64_t co
 
 RenderOutput render(const GaussianBatch& g, const Camera& camera, const RenderSettings& settings,
                     torch::Device device, int threads) {
-  TORCH_CHECK(g.means.defined() && g.means.dim() == 2,
-              device.is_cuda() ? "cuda" : "cpu", " rasterizer: means must be [N, 3]");
+  TORCH_CHECK(g.means.defined() && g.means.dim() == 2, device.is_cuda() ? "cuda" : "cpu",
+              " rasterizer: means must be [N, 3]");
   const int64_t n = g.means.size(0);
   check_input(g.means, "means", n, 3, device);
   check_input(g.scales, "scales", n, 3, device);
@@ -231,6 +231,19 @@ RenderOutput render(const GaussianBatch& g, const Camera& camera, const RenderSe
   if (settings.render_depth) out.depth = outs[2] / outs[1].clamp_min(1e-10);
   out.radii = outs[3];
   return out;
+}
+
+RenderOutput render_bridged(const GaussianBatch& g, const Camera& camera,
+                            const RenderSettings& settings, torch::Device device, int threads) {
+  TORCH_CHECK(g.means.defined(), "rasterizer: means is undefined");
+  const torch::Device home = g.means.device();
+  if (home == device) return render(g, camera, settings, device, threads);
+  auto there = [&](const at::Tensor& t) { return t.defined() ? t.to(device) : t; };
+  const GaussianBatch moved{there(g.means),     there(g.scales), there(g.rotations),
+                            there(g.opacities), there(g.colors), there(g.means2d_grad_holder)};
+  RenderOutput out = render(moved, camera, settings, device, threads);
+  auto back = [&](const at::Tensor& t) { return t.defined() ? t.to(home) : t; };
+  return RenderOutput{back(out.image), back(out.alpha), back(out.depth), back(out.radii)};
 }
 
 }  // namespace crpgs::raster

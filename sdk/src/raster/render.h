@@ -13,4 +13,10 @@ namespace crpgs::raster {
 RenderOutput render(const GaussianBatch& gaussians, const Camera& camera,
                     const RenderSettings& settings, torch::Device device, int threads);
 
+/// render() on `device` for Gaussians that may live elsewhere: moves them there (differentiably)
+/// and the outputs back to where the means are, so that a model kept on the CPU can use the
+/// CUDA rasterizer (the `cuda` component does this).
+RenderOutput render_bridged(const GaussianBatch& gaussians, const Camera& camera,
+                            const RenderSettings& settings, torch::Device device, int threads);
+
 }  // namespace crpgs::raster
