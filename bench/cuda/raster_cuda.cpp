@@ -2,7 +2,8 @@
 // fern layout, fern_scene.h): forward and forward+backward at 504x378 and 1008x756 for 10k,
 // 100k and 300k Gaussians. GPU times: median of --reps runs after warm-up, each synchronised
 // (torch::cuda::synchronize) before the clock is read; CPU times: median of --cpu-reps runs on
-// all cores. Prints one Markdown table; results go by hand to bench/results/raster_cuda.md.
+// all cores. Then the GPU stages one by one (100k Gaussians), each synchronised. Prints two
+// Markdown tables; results go by hand to bench/results/raster_cuda.md.
 // Usage: bench_raster_cuda [--reps N] [--cpu-reps N] [--quick]
 #include <algorithm>
 #include <chrono>
@@ -16,6 +17,7 @@
 #include <torch/torch.h>
 
 #include "fern_scene.h"
+#include "raster/cuda/stages.h"
 #include "raster/render.h"
 #include "raster/stages.h"
 
@@ -34,7 +36,8 @@ GaussianBatch on(const GaussianBatch& s, torch::Device d, bool grad) {
   g.rotations = s.rotations.to(d).detach().requires_grad_(grad);
   g.opacities = s.opacities.to(d).detach().requires_grad_(grad);
   g.colors = s.colors.to(d).detach().requires_grad_(grad);
-  g.means2d_grad_holder = at::zeros({s.means.size(0), 2}, at::TensorOptions(d)).requires_grad_(grad);
+  g.means2d_grad_holder =
+      at::zeros({s.means.size(0), 2}, at::TensorOptions(d)).requires_grad_(grad);
   return g;
 }
 
@@ -82,15 +85,52 @@ Times time_path(const GaussianBatch& scene, const Camera& cam, torch::Device d, 
   return t;
 }
 
+// Median ms of each GPU stage (forward, then the backward of an image gradient).
+void print_stages(const GaussianBatch& scene, const Camera& cam, int reps) {
+  namespace rc = crpgs::raster::cuda;
+  const GaussianBatch g = on(scene, torch::Device(torch::kCUDA, 0), false);
+  const RenderSettings st;
+  const at::Tensor v_img = at::rand({cam.height, cam.width, 3}).to(g.means.device());
+  crpgs::raster::ProjectResult pr;
+  crpgs::raster::TileIntersections is;
+  crpgs::raster::RasterizeResult rr;
+  crpgs::raster::RasterizeGrads rg;
+  const double proj = median_ms(
+      3, reps, true, [&] { pr = rc::project_forward(g.means, g.scales, g.rotations, cam, st); });
+  const double isect = median_ms(3, reps, true, [&] {
+    is = rc::intersect_tiles(pr.means2d, pr.radii, pr.depths, cam.width, cam.height, pr.conics,
+                             g.opacities);
+  });
+  const double fwd = median_ms(3, reps, true, [&] {
+    rr = rc::rasterize_forward(pr.means2d, pr.conics, g.opacities, g.colors, pr.depths, is,
+                               cam.width, cam.height, st.background, false);
+  });
+  const double bwd = median_ms(3, reps, true, [&] {
+    rg = rc::rasterize_backward(pr.means2d, pr.conics, g.opacities, g.colors, pr.depths, is, rr,
+                                cam.width, cam.height, st.background, false, v_img, at::Tensor(),
+                                at::Tensor());
+  });
+  const double pbwd = median_ms(3, reps, true, [&] {
+    rc::project_backward(g.means, g.scales, g.rotations, cam, pr, rg.v_means2d, rg.v_conics,
+                         rg.v_depths);
+  });
+  std::printf("| %dx%d | %lld | %.3f | %.3f | %.3f | %.3f | %.3f | %lld |\n", cam.width, cam.height,
+              static_cast<long long>(scene.means.size(0)), proj, isect, fwd, bwd, pbwd,
+              static_cast<long long>(is.gaussian_ids.numel()));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   int reps = 50, cpu_reps = 5;
   bool quick = false;
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--reps") && i + 1 < argc) reps = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--cpu-reps") && i + 1 < argc) cpu_reps = std::atoi(argv[++i]);
-    else if (!std::strcmp(argv[i], "--quick")) quick = true;
+    if (!std::strcmp(argv[i], "--reps") && i + 1 < argc)
+      reps = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--cpu-reps") && i + 1 < argc)
+      cpu_reps = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--quick"))
+      quick = true;
   }
   if (!torch::cuda::is_available()) {
     std::printf("SKIPPED: libtorch sees no CUDA device\n");
@@ -103,10 +143,11 @@ int main(int argc, char** argv) {
   }
   const int threads = crpgs::raster::resolve_threads(0);
   at::set_num_threads(threads);
-  std::printf("| size | Gaussians | GPU fwd (ms) | GPU fwd+bwd (ms) | CPU fwd (ms, %d threads) | "
-              "CPU fwd+bwd (ms) | speed-up fwd | speed-up fwd+bwd |\n|---|---:|---:|---:|---:|---:|"
-              "---:|---:|\n",
-              threads);
+  std::printf(
+      "| size | Gaussians | GPU fwd (ms) | GPU fwd+bwd (ms) | CPU fwd (ms, %d threads) | "
+      "CPU fwd+bwd (ms) | speed-up fwd | speed-up fwd+bwd |\n|---|---:|---:|---:|---:|---:|"
+      "---:|---:|\n",
+      threads);
   for (int w : {504, 1008}) {
     for (int64_t n : {int64_t(10000), int64_t(100000), int64_t(300000)}) {
       if (quick && (w != 504 || n != 100000)) continue;
@@ -119,6 +160,14 @@ int main(int argc, char** argv) {
                   cpu.fwd / gpu.fwd, cpu.fwdbwd / gpu.fwdbwd);
       std::fflush(stdout);
     }
+  }
+  std::printf(
+      "\n| size | Gaussians | project (ms) | intersect (ms) | raster fwd (ms) | raster bwd "
+      "(ms) | project bwd (ms) | tile entries |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
+  for (int w : {504, 1008}) {
+    if (quick && w != 504) continue;
+    print_stages(crpgs::bench::make_fern_scene(fern, 100000), crpgs::bench::fern_camera(fern, w),
+                 reps);
   }
   return 0;
 }
