@@ -158,16 +158,18 @@ inline Camera fern_camera(const SfmModel& m, int width) {
   return c.resized(width, int(std::lround(double(c.height) * width / c.width)));
 }
 
-/// Copies with requires_grad, and a means2d gradient holder.
+/// Copies on `device` (leaves that require a gradient when `grad`), and a means2d gradient
+/// holder.
+inline GaussianBatch copy_to(const GaussianBatch& s, torch::Device device, bool grad) {
+  auto leaf = [&](const at::Tensor& t) {
+    return t.to(device).detach().clone().requires_grad_(grad);
+  };
+  return GaussianBatch{leaf(s.means),     leaf(s.scales), leaf(s.rotations),
+                       leaf(s.opacities), leaf(s.colors), leaf(at::zeros({s.means.size(0), 2}))};
+}
+
 inline GaussianBatch with_grad(const GaussianBatch& s) {
-  GaussianBatch g;
-  g.means = s.means.clone().requires_grad_(true);
-  g.scales = s.scales.clone().requires_grad_(true);
-  g.rotations = s.rotations.clone().requires_grad_(true);
-  g.opacities = s.opacities.clone().requires_grad_(true);
-  g.colors = s.colors.clone().requires_grad_(true);
-  g.means2d_grad_holder = at::zeros({s.means.size(0), 2}).requires_grad_(true);
-  return g;
+  return copy_to(s, torch::kCPU, true);
 }
 
 }  // namespace crpgs::bench

@@ -29,18 +29,6 @@ using crpgs::RenderOutput;
 using crpgs::RenderSettings;
 using clock_type = std::chrono::steady_clock;
 
-GaussianBatch on(const GaussianBatch& s, torch::Device d, bool grad) {
-  GaussianBatch g;
-  g.means = s.means.to(d).detach().requires_grad_(grad);
-  g.scales = s.scales.to(d).detach().requires_grad_(grad);
-  g.rotations = s.rotations.to(d).detach().requires_grad_(grad);
-  g.opacities = s.opacities.to(d).detach().requires_grad_(grad);
-  g.colors = s.colors.to(d).detach().requires_grad_(grad);
-  g.means2d_grad_holder =
-      at::zeros({s.means.size(0), 2}, at::TensorOptions(d)).requires_grad_(grad);
-  return g;
-}
-
 // Median milliseconds of `reps` calls of f (after `warm` untimed ones).
 double median_ms(int warm, int reps, bool cuda, const std::function<void()>& f) {
   for (int i = 0; i < warm; ++i) f();
@@ -63,8 +51,8 @@ struct Times {
 Times time_path(const GaussianBatch& scene, const Camera& cam, torch::Device d, int threads,
                 int reps) {
   const bool cuda = d.is_cuda();
-  const GaussianBatch plain = on(scene, d, false);
-  const GaussianBatch g = on(scene, d, true);
+  const GaussianBatch plain = crpgs::bench::copy_to(scene, d, false);
+  const GaussianBatch g = crpgs::bench::copy_to(scene, d, true);
   const at::Tensor target = at::rand({cam.height, cam.width, 3}).to(d);
   const RenderSettings st;
   const int warm = cuda ? 3 : 1;
@@ -88,7 +76,7 @@ Times time_path(const GaussianBatch& scene, const Camera& cam, torch::Device d, 
 // Median ms of each GPU stage (forward, then the backward of an image gradient).
 void print_stages(const GaussianBatch& scene, const Camera& cam, int reps) {
   namespace rc = crpgs::raster::cuda;
-  const GaussianBatch g = on(scene, torch::Device(torch::kCUDA, 0), false);
+  const GaussianBatch g = crpgs::bench::copy_to(scene, torch::Device(torch::kCUDA, 0), false);
   const RenderSettings st;
   const at::Tensor v_img = at::rand({cam.height, cam.width, 3}).to(g.means.device());
   crpgs::raster::ProjectResult pr;
