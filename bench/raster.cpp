@@ -18,8 +18,8 @@
 #include <Eigen/Geometry>
 
 #include "crpgs/rasterizer.h"
-#include "fern_scene.h"
 #include "crpgs/runtime.h"
+#include "fern_scene.h"
 #include "raster/cpu_rasterizer.h"
 #include "raster/reference.h"
 #include "raster/stages.h"

@@ -227,7 +227,9 @@ inline std::vector<HardCase> odd_size_cases() {
   std::vector<HardCase> out;
   for (const auto& wh : {std::pair<int, int>{1, 1}, {17, 33}, {33, 17}, {15, 1}}) {
     HardCase h{std::to_string(wh.first) + "x" + std::to_string(wh.second),
-               make_camera(wh.first, wh.second), {}, settings_with(true)};
+               make_camera(wh.first, wh.second),
+               {},
+               settings_with(true)};
     h.scene = random_scene(20, 91, h.cam, 2.0);
     out.push_back(h);
   }
@@ -316,8 +318,8 @@ inline RenderRun run(const Scene& s, const Camera& cam, const RenderSettings& st
   g.colors = s.colors.to(opt).detach().requires_grad_(true);
   g.means2d_grad_holder = at::zeros({s.size(), 2}, opt).requires_grad_(true);
   RenderRun r;
-  const RenderOutput out = reference ? reference::render(g, cam, st)
-                                     : raster::render(g, cam, st, device, threads);
+  const RenderOutput out =
+      reference ? reference::render(g, cam, st) : raster::render(g, cam, st, device, threads);
   const at::Tensor loss = loss_of(out, w, st.render_depth);
   r.loss = loss.item<double>();
   const std::vector<at::Tensor> leaves = {g.means,     g.scales, g.rotations,

@@ -469,13 +469,16 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
   return g;
 }
 
+at::Tensor identity_rotations(int64_t n, const at::TensorOptions& options) {
+  at::Tensor rot = at::zeros({n, 4}, options);
+  if (n > 0) rot.select(1, 0).fill_(1.f);
+  return rot;
+}
+
 at::Tensor visible_anchors(const at::Tensor& positions, const at::Tensor& extents,
                            const Camera& camera, const RenderSettings& settings, int threads) {
-  const int64_t n = positions.size(0);
-  at::Tensor rot = at::zeros({n, 4}, positions.options());
-  if (n > 0) rot.select(1, 0).fill_(1.f);
-  const ProjectResult pr = project_forward(positions, extents, rot, camera, settings, threads);
-  return pr.radii.gt(0);
+  const at::Tensor rot = identity_rotations(positions.size(0), positions.options());
+  return project_forward(positions, extents, rot, camera, settings, threads).radii.gt(0);
 }
 
 }  // namespace crpgs::raster

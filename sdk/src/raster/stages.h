@@ -105,6 +105,9 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
                                   const at::Tensor& v_image, const at::Tensor& v_alpha,
                                   const at::Tensor& v_depth, int threads);
 
+/// [N,4] identity quaternions (w = 1) for the anchor prefilter of both back-ends.
+at::Tensor identity_rotations(int64_t n, const at::TensorOptions& options);
+
 /// Anchor prefilter: positions [N,3], extents [N,3] (scales, identity rotation) -> bool [N].
 at::Tensor visible_anchors(const at::Tensor& positions, const at::Tensor& extents,
                            const Camera& camera, const RenderSettings& settings, int threads);

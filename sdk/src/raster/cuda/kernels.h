@@ -25,9 +25,8 @@ const char* project_forward(const kernels::ProjectCamera& cam, int64_t n, const 
 /// Gradients of means, scales and quaternions (outputs pre-zeroed; culled Gaussians stay 0).
 const char* project_backward(const kernels::ProjectCamera& cam, int64_t n, const float* means,
                              const float* scales, const float* quats, const int32_t* radii,
-                             const float* v_means2d, const float* v_conics,
-                             const float* v_depths, float* v_means, float* v_scales,
-                             float* v_quats);
+                             const float* v_means2d, const float* v_conics, const float* v_depths,
+                             float* v_means, float* v_scales, float* v_quats);
 
 /// Tile rectangles ([x0, y0, x1, y1] per Gaussian, int32 [n, 4]) as intersect_tiles clips them
 /// (conics and opacities may be null: the radius box alone) and the number of tiles of each.

@@ -23,8 +23,8 @@ void check_float(const at::Tensor& t, const char* name, int64_t cols) {
   TORCH_CHECK(t.scalar_type() == at::kFloat, "cuda rasterizer: ", name, " must be float32");
   TORCH_CHECK(t.is_contiguous(), "cuda rasterizer: ", name, " must be contiguous");
   if (cols > 0) {
-    TORCH_CHECK(t.dim() == 2 && t.size(1) == cols, "cuda rasterizer: ", name, " must be [N, ",
-                cols, "], got ", t.sizes());
+    TORCH_CHECK(t.dim() == 2 && t.size(1) == cols, "cuda rasterizer: ", name, " must be [N, ", cols,
+                "], got ", t.sizes());
   } else {
     TORCH_CHECK(t.dim() == 1, "cuda rasterizer: ", name, " must be [N], got ", t.sizes());
   }
@@ -32,9 +32,9 @@ void check_float(const at::Tensor& t, const char* name, int64_t cols) {
 
 const float* ptr_or_null(const at::Tensor& t, int64_t numel) {
   if (!t.defined()) return nullptr;
-  TORCH_CHECK(t.is_cuda() && t.scalar_type() == at::kFloat && t.is_contiguous() &&
-                  t.numel() == numel,
-              "cuda rasterizer: output gradient has the wrong shape, type or device");
+  TORCH_CHECK(
+      t.is_cuda() && t.scalar_type() == at::kFloat && t.is_contiguous() && t.numel() == numel,
+      "cuda rasterizer: output gradient has the wrong shape, type or device");
   return t.data_ptr<float>();
 }
 
@@ -113,12 +113,11 @@ ProjectGrads project_backward(const at::Tensor& means, const at::Tensor& scales,
   g.v_means = at::zeros({n, 3}, means.options());
   g.v_scales = at::zeros({n, 3}, means.options());
   g.v_rotations = at::zeros({n, 4}, means.options());
-  check(k::project_backward(project_camera(camera, s), n, means.data_ptr<float>(),
-                            scales.data_ptr<float>(), rotations.data_ptr<float>(),
-                            fwd.radii.data_ptr<int32_t>(), v_means2d.data_ptr<float>(),
-                            v_conics.data_ptr<float>(), v_depths.data_ptr<float>(),
-                            g.v_means.data_ptr<float>(), g.v_scales.data_ptr<float>(),
-                            g.v_rotations.data_ptr<float>()),
+  check(k::project_backward(
+            project_camera(camera, s), n, means.data_ptr<float>(), scales.data_ptr<float>(),
+            rotations.data_ptr<float>(), fwd.radii.data_ptr<int32_t>(), v_means2d.data_ptr<float>(),
+            v_conics.data_ptr<float>(), v_depths.data_ptr<float>(), g.v_means.data_ptr<float>(),
+            g.v_scales.data_ptr<float>(), g.v_rotations.data_ptr<float>()),
         "projection backward");
   return g;
 }
@@ -171,11 +170,11 @@ TileIntersections intersect_tiles(const at::Tensor& means2d, const at::Tensor& r
   if (total > 0) {
     const at::Tensor keys_unsorted = at::empty({total}, lopt);
     const at::Tensor ids_unsorted = at::empty({total}, iopt);
-    check(k::emit_intersections(n, rects.data_ptr<int32_t>(), cumulative.data_ptr<int64_t>(),
-                                depths.data_ptr<float>(), out.tiles_x,
-                                keys_unsorted.data_ptr<int64_t>(),
-                                ids_unsorted.data_ptr<int32_t>()),
-          "tile keys");
+    check(
+        k::emit_intersections(n, rects.data_ptr<int32_t>(), cumulative.data_ptr<int64_t>(),
+                              depths.data_ptr<float>(), out.tiles_x,
+                              keys_unsorted.data_ptr<int64_t>(), ids_unsorted.data_ptr<int32_t>()),
+        "tile keys");
     int tile_bits = 0;
     while ((int64_t(1) << tile_bits) < n_tiles) ++tile_bits;
     size_t bytes = 0;
@@ -239,20 +238,18 @@ RasterizeGrads rasterize_backward(const at::Tensor& means2d, const at::Tensor& c
   g.v_opacities = at::zeros({n}, fopt);
   g.v_colors = at::zeros({n, 3}, fopt);
   g.v_depths = at::zeros({n}, fopt);
-  check(k::rasterize_backward(in, fwd.final_T.data_ptr<float>(),
-                              fwd.last_contrib.data_ptr<int32_t>(), vi, va, vd,
-                              g.v_means2d.data_ptr<float>(), g.v_conics.data_ptr<float>(),
-                              g.v_opacities.data_ptr<float>(), g.v_colors.data_ptr<float>(),
-                              g.v_depths.data_ptr<float>()),
-        "rasterization backward");
+  check(
+      k::rasterize_backward(in, fwd.final_T.data_ptr<float>(), fwd.last_contrib.data_ptr<int32_t>(),
+                            vi, va, vd, g.v_means2d.data_ptr<float>(), g.v_conics.data_ptr<float>(),
+                            g.v_opacities.data_ptr<float>(), g.v_colors.data_ptr<float>(),
+                            g.v_depths.data_ptr<float>()),
+      "rasterization backward");
   return g;
 }
 
 at::Tensor visible_anchors(const at::Tensor& positions, const at::Tensor& extents,
                            const Camera& camera, const RenderSettings& settings) {
-  const int64_t n = positions.size(0);
-  at::Tensor rot = at::zeros({n, 4}, positions.options());
-  if (n > 0) rot.select(1, 0).fill_(1.f);
+  const at::Tensor rot = identity_rotations(positions.size(0), positions.options());
   return project_forward(positions, extents, rot, camera, settings).radii.gt(0);
 }
 
