@@ -43,6 +43,8 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
   };
   BitstreamReport rep;
   rep.path = path;
+  // The codec reads the model on the CPU (its arithmetic is the CPU's); training is over.
+  t.model().to(torch::kCPU);
   auto t0 = clock::now();
   QuantizedAttributes q;
   CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q));

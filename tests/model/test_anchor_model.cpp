@@ -4,6 +4,8 @@
 
 #include <ATen/CPUGeneratorImpl.h>
 
+#include <functional>
+
 #include "crpgs/anchor_model.h"
 #include "crpgs/components.h"
 #include "crpgs/scene_generator.h"
@@ -224,6 +226,42 @@ TEST(SparseMlp, SameValuesAndGradientsAsTheDenseMlpsSelectedOutputs) {
       1e-4, 1e-4));
 }
 
+// What tensors off the CPU run (a GPU): the libtorch forms, against the CPU kernels.
+TEST(MlpReference, SameValuesAndGradientsAsTheCpuKernels) {
+  torch::manual_seed(12);
+  SparseCase c(2500, 7);
+  auto up_sparse = torch::randn({c.row.numel(), 7});
+  auto mlp = random_mlp(2500, torch::kFloat);
+  auto up_dense = torch::randn({2500, 4});
+  auto run = [](const std::vector<torch::Tensor>& in0, const torch::Tensor& upstream,
+                const std::function<torch::Tensor(const std::vector<torch::Tensor>&)>& f) {
+    std::vector<torch::Tensor> in;
+    for (const auto& t : in0) in.push_back(t.clone().requires_grad_(true));
+    auto y = f(in);
+    (y * upstream).sum().backward();
+    std::vector<torch::Tensor> out{y.detach()};
+    for (auto& t : in) out.push_back(t.grad());
+    return out;
+  };
+  const auto kernel = run(
+      mlp, up_dense, [](const auto& in) { return chunked_mlp(in[0], in[1], in[2], in[3], in[4]); });
+  const auto ref = run(mlp, up_dense, [](const auto& in) {
+    return chunked_mlp_reference(in[0], in[1], in[2], in[3], in[4]);
+  });
+  const auto sparse_kernel = run(c.in, up_sparse, [&](const auto& in) {
+    return sparse_mlp(in[0], in[1], in[2], in[3], in[4], c.row, c.slot, 7);
+  });
+  const auto sparse_ref = run(c.in, up_sparse, [&](const auto& in) {
+    return sparse_mlp_reference(in[0], in[1], in[2], in[3], in[4], c.row, c.slot, 7);
+  });
+  for (size_t i = 0; i < ref.size(); ++i) {
+    EXPECT_TRUE(torch::allclose(kernel[i], ref[i], 1e-4, 1e-4)) << "dense tensor " << i;
+    EXPECT_TRUE(torch::allclose(sparse_kernel[i], sparse_ref[i], 1e-4, 1e-4))
+        << "sparse tensor " << i << ": max diff "
+        << (sparse_kernel[i] - sparse_ref[i]).abs().max().item<float>();
+  }
+}
+
 TEST(SparseMlp, SameResultsWithOneAndTwoThreads) {
   torch::manual_seed(11);
   SparseCase c(5000, 7);
@@ -262,6 +300,22 @@ TEST(GatherSortedRows, RefusesAnIndexItsBackwardCannotUse) {
       EXPECT_NE(std::string(e.what()).find("gather_sorted_rows"), std::string::npos) << e.what();
     }
   }
+}
+
+// Anchor growing's pooled parent features: the CPU loop and the scatter_reduce that other
+// devices run, with an empty cell (-inf) and repeated cells.
+TEST(MaxRowsInto, LoopAndReferenceAgree) {
+  torch::manual_seed(13);
+  auto src = torch::randn({200, 7});
+  auto cell = torch::randint(0, 40, {200}, torch::kLong);
+  cell.masked_fill_(cell == 5, 6);  // cell 5 stays empty
+  const auto got = max_rows_into(src, cell, 41);
+  EXPECT_TRUE(torch::equal(got, max_rows_into_reference(src, cell, 41)));
+  EXPECT_TRUE(torch::isinf(got[5]).all().item<bool>());
+  EXPECT_TRUE(torch::isinf(got[40]).all().item<bool>());
+  const auto rows6 = src.index({cell == 6});
+  EXPECT_TRUE(torch::equal(got[6], std::get<0>(rows6.max(0))));
+  EXPECT_THROW(max_rows_into(src, cell, 30), c10::Error);  // a cell out of range
 }
 
 struct SmallScene {

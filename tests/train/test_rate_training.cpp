@@ -156,6 +156,45 @@ TEST(RateTraining, LargeWeightsLowerTheRateAndTheMasks) {
   EXPECT_LT(masks.second, base.second - 0.01);
 }
 
+// train.device: the model stays on the CPU by default; `cuda` without a GPU (or with a CPU-only
+// libtorch, as on CI) is refused at set-up, saying why.
+TEST(RateTraining, TrainingDeviceIsTheCpuUnlessCudaIsAvailable) {
+  const std::string base =
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 6}\n";
+  auto plain_cfg = Config::from_string(base + "train: {threads: 1}\n", "cpu.yaml");
+  ASSERT_TRUE(plain_cfg.ok());
+  auto plain = setup_training(plain_cfg->resolve(test::rate_registry()).value(),
+                              test::rate_registry(), SetupOptions());
+  ASSERT_TRUE(plain.ok()) << plain.status().to_string();
+  EXPECT_TRUE((*plain)->model().device().is_cpu());
+  (*plain)->model().to(torch::kCPU);  // already there: nothing changes
+  EXPECT_TRUE((*plain)->model().features().requires_grad());
+  if (torch::cuda::is_available()) {
+    GTEST_SKIP() << "a CUDA device is visible: the refusal without one is not testable here "
+                    "(scripts/cuda-check E2E=1 trains on it)";
+  }
+  auto cfg = Config::from_string(
+      base + "train: {threads: 1, device: cuda}\nrasterizer: {type: cpu, threads: 1}\n",
+      "gpu.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto resolved = cfg->resolve(test::rate_registry());
+  ASSERT_TRUE(resolved.ok()) << resolved.status().to_string();
+  auto t = setup_training(resolved.value(), test::rate_registry(), SetupOptions());
+  ASSERT_FALSE(t.ok());
+  EXPECT_NE(t.status().message().find("train.device: cuda"), std::string::npos)
+      << t.status().to_string();
+  EXPECT_NE(t.status().message().find("no CUDA device"), std::string::npos)
+      << t.status().to_string();
+  // A device that does not exist is the schema's error, naming the choices.
+  auto bad = Config::from_string(base + "train: {device: tpu}\n", "tpu.yaml");
+  ASSERT_TRUE(bad.ok());
+  auto bad_resolved = bad->resolve(test::rate_registry());
+  ASSERT_FALSE(bad_resolved.ok());
+  EXPECT_NE(bad_resolved.status().message().find("cuda"), std::string::npos)
+      << bad_resolved.status().to_string();
+}
+
 TEST(RateTraining, SetupFromConfigAttachesTheRatePath) {
   SKIP_WITHOUT_PLUGINS();
   auto cfg = Config::from_string(

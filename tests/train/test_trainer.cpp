@@ -105,28 +105,10 @@ TEST(Ssim, MatchesTheMetricsLibraryAndIsOneForEqualImages) {
   EXPECT_NEAR(tensor_ssim(a, b).item<double>(), ref.value(), 1e-4);
 }
 
-// SSIM as libtorch autograd computes it (depthwise convolutions): the training loss's SSIM and
-// its hand-written gradient are checked against it.
+// The training loss's SSIM and its hand-written gradient against libtorch's autograd of the
+// convolution form (tensor_ssim_reference, what other devices run), in double.
 torch::Tensor autograd_ssim(const torch::Tensor& a, const torch::Tensor& b) {
-  const int64_t C = a.size(2);
-  auto x = a.permute({2, 0, 1}).unsqueeze(0).to(torch::kDouble);
-  auto y = b.permute({2, 0, 1}).unsqueeze(0).to(torch::kDouble);
-  auto t = torch::arange(11, torch::kDouble) - 5;
-  auto g = torch::exp(-(t * t) / (2 * 1.5 * 1.5));
-  g = g / g.sum();
-  auto wv = g.view({1, 1, 11, 1}).expand({C, 1, 11, 1}).contiguous();
-  auto wh = g.view({1, 1, 1, 11}).expand({C, 1, 1, 11}).contiguous();
-  auto blur = [&](const torch::Tensor& im) {
-    auto o = torch::conv2d(im, wv, torch::Tensor(), 1, at::IntArrayRef{5, 0}, 1, C);
-    return torch::conv2d(o, wh, torch::Tensor(), 1, at::IntArrayRef{0, 5}, 1, C);
-  };
-  auto mu_x = blur(x), mu_y = blur(y);
-  auto s_x = blur(x * x) - mu_x * mu_x, s_y = blur(y * y) - mu_y * mu_y;
-  auto s_xy = blur(x * y) - mu_x * mu_y;
-  const double C1 = 0.01 * 0.01, C2 = 0.03 * 0.03;
-  return (((2 * mu_x * mu_y + C1) * (2 * s_xy + C2)) /
-          ((mu_x * mu_x + mu_y * mu_y + C1) * (s_x + s_y + C2)))
-      .mean();
+  return tensor_ssim_reference(a.to(torch::kDouble), b.to(torch::kDouble));
 }
 
 // Sizes with and without an interior (the window is 11 wide), one and three channels.

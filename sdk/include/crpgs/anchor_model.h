@@ -161,6 +161,15 @@ class AnchorModel {
   AnchorModel(const AnchorModel&) = delete;
   AnchorModel& operator=(const AnchorModel&) = delete;
 
+  /// Where the model's tensors live (the CPU unless moved).
+  torch::Device device() const;
+  /// Moves every tensor of the model to `device`: parameters, optimiser moments, statistics,
+  /// links, and the parameters of the components it optimises (feature model, context), which
+  /// move in place so that the components see them. Gradients are dropped. Random draws stay on
+  /// the CPU (the training generator is a CPU one) and are moved, so a run draws the same numbers
+  /// on every device; quantize() and the link searches also run on CPU copies.
+  void to(const torch::Device& device);
+
   int64_t num_anchors() const;
   int n_offsets() const;
   const AnchorModelOptions& options() const;
@@ -246,7 +255,8 @@ class AnchorModel {
   ///     xc = min(max(x, m - 15000 q), m + 15000 q); k = round(xc / q) (half to even), non-finite
   ///     k -> 0, clamped to +-2^30; symbol = int32(k); value = float(symbol) * q;
   ///     offsets whose mask is off get symbol 0 and value 0.
-  /// Deterministic for any thread count. Does not change the model.
+  /// Deterministic for any thread count. Does not change the model. CPU tensors, whatever the
+  /// model's device.
   QuantizedAttributes quantize(ContextModel& context, const QuantSteps& q0,
                                const torch::Tensor& index = {}) const;
   /// The same with the attached context and rate_options().q0 (requires has_rate()).

@@ -73,6 +73,9 @@ struct TrainOptions {
   double checkpoint_minutes = 15;
   /// at::set_num_threads for train(); 0 = the process's count (setup_training sets all cores)
   int threads = 0;
+  /// Where the model trains: "cpu", or "cuda" (its tensors on the GPU; needs the `cuda`
+  /// rasterizer and a libtorch built with CUDA).
+  std::string device = "cpu";
   /// Non-finite iterations in a row whose updates are discarded before rolling back to the last
   /// good state (the last checkpoint, kept in memory), and roll-backs before giving up.
   int max_skipped_steps = 5;
@@ -321,10 +324,13 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
                                                 const RateSetup& rate = RateSetup());
 
 /// Differentiable SSIM (11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, zero
-/// padding, mean over the map). a, b: non-empty float [H, W, C] on the CPU; the gradient flows
-/// to `a` only (`b`, the reference, must not require one).
+/// padding, mean over the map). a, b: non-empty float [H, W, C] on one device; the gradient
+/// flows to `a` only (`b`, the reference, must not require one). On the CPU a hand-written
+/// kernel and backward; elsewhere tensor_ssim_reference.
 torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b);
-/// PSNR in dB of [H, W, C] images in [0, 1].
+/// The same SSIM from libtorch operations (depthwise convolutions, autograd), on any device.
+torch::Tensor tensor_ssim_reference(const torch::Tensor& a, const torch::Tensor& b);
+/// PSNR in dB of [H, W, C] images in [0, 1] (b is moved to a's device).
 double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b);
 
 }  // namespace crpgs

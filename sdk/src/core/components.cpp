@@ -63,9 +63,9 @@ crpgs_create_args create_args_for(const Config& resolved) {
   const YAML::Node model = resolved.section("model");
   a.feature_dim = model && model["feature_dim"] ? model["feature_dim"].as<int>() : 50;
   a.n_offsets = model && model["n_offsets"] ? model["n_offsets"].as<int>() : 10;
-  // The model's tensors stay on the CPU whatever the rasterizer: the `cuda` one moves each batch
-  // to its GPU and the results back (cuda_rasterizer.h). A model on the GPU is issue #7's next
-  // step; then this follows a training device, not the rasterizer.
+  // Components are built on the CPU (the same initial values on every machine, and a decoder
+  // needs no GPU); train.device: cuda moves the model and the components it optimises
+  // (AnchorModel::to). The `cuda` rasterizer takes either (cuda_rasterizer.h).
   a.device_cuda = 0;
   a.coded_dim = a.feature_dim;  // the feature model may shrink it (SFA): set after creating it
   return a;

@@ -56,7 +56,8 @@ torch::Tensor ste_mask(const torch::Tensor& logits, double threshold) {
 
 // HAC update_anchor_bound: per-axis min/max expanded multiplicatively about the origin.
 torch::Tensor hac_bounds(const torch::Tensor& anchor) {  // [N, 3] -> [2, 3]
-  if (anchor.size(0) == 0) return torch::stack({torch::zeros({3}), torch::ones({3})});
+  if (anchor.size(0) == 0)
+    return torch::stack({torch::zeros({3}, anchor.options()), torch::ones({3}, anchor.options())});
   auto mn = std::get<0>(anchor.min(0)), mx = std::get<0>(anchor.max(0));
   mn = torch::where(mn < 0, mn * 1.2, mn * 0.8);
   mx = torch::where(mx > 0, mx * 1.2, mx * 0.8);
@@ -73,8 +74,9 @@ torch::Tensor normalise(const torch::Tensor& pos, const torch::Tensor& bounds) {
 
 // Mean of all elements in double, in a fixed order (identical for any thread count): eight
 // interleaved partial sums, so the loop is not one chain of dependent additions (training calls
-// this on every anchor's features each iteration).
+// this on every anchor's features each iteration). Off the CPU a double mean on the device.
 float serial_mean(const torch::Tensor& t) {
+  if (!t.device().is_cpu()) return t.detach().to(torch::kDouble).mean().item<float>();
   auto c = t.detach().to(torch::kFloat).contiguous();
   const float* d = c.data_ptr<float>();
   const int64_t n = c.numel();
@@ -186,10 +188,15 @@ struct AnchorModel::Impl {
   }
   void reset_stats() {
     const int64_t n = anchor.size(0);
-    opacity_accum = torch::zeros({n});
-    anchor_demon = torch::zeros({n});
-    offset_grad_accum = torch::zeros({n * K});
-    offset_denom = torch::zeros({n * K});
+    opacity_accum = torch::zeros({n}, anchor.options());
+    anchor_demon = torch::zeros({n}, anchor.options());
+    offset_grad_accum = torch::zeros({n * K}, anchor.options());
+    offset_denom = torch::zeros({n * K}, anchor.options());
+  }
+  // Uniform [0, 1) floats drawn on the CPU from `g` (the global generator when empty) and moved
+  // to the model's device: the draws, and so a run's randomness, are the same on every device.
+  torch::Tensor rand(at::IntArrayRef sizes, const c10::optional<at::Generator>& g) const {
+    return torch::rand(sizes, g).to(anchor.device());
   }
   void lr_for(ParamGroup& g, int it) const;
   c10::optional<at::Generator> gen_opt() const {
@@ -509,7 +516,8 @@ void AnchorModel::recompute_bounds() {
 }
 torch::Tensor AnchorModel::offset_masks() const {
   const Impl& m = *impl_;
-  if (!m.opt.use_offset_mask) return torch::ones({m.anchor.size(0), m.K}, torch::kBool);
+  if (!m.opt.use_offset_mask)
+    return torch::ones({m.anchor.size(0), m.K}, m.anchor.options().dtype(torch::kBool));
   return torch::sigmoid(m.p(m.i_mask).detach()) > m.opt.mask_threshold;
 }
 torch::Tensor AnchorModel::active_anchors() const {
@@ -593,12 +601,14 @@ StatusOr<int64_t> AnchorModel::rebuild_links(uint64_t seed) {
   Impl& m = *impl_;
   if (!m.link_strategy) return Status(StatusCode::kInvalidArgument, "links: none attached");
   torch::NoGradGuard no_grad;
+  // The link strategies' searches run on the CPU (crpgs/links.h); the result follows the model.
+  const auto cpu = [](const torch::Tensor& t) { return t.detach().to(torch::kCPU); };
   LinkInputs in;
-  in.features = m.p(m.i_feat).detach();  // raw f_i (method.md §7.5)
-  in.positions = m.anchor;
-  in.active = active_anchors();
+  in.features = cpu(m.p(m.i_feat));  // raw f_i (method.md §7.5)
+  in.positions = cpu(m.anchor);
+  in.active = cpu(active_anchors());
   in.seed = seed;
-  auto links = m.link_strategy->build_links(in).to(torch::kLong).contiguous();
+  auto links = m.link_strategy->build_links(in).to(torch::kCPU, torch::kLong).contiguous();
   const int64_t n = m.anchor.size(0);
   if (links.dim() != 1 || links.size(0) != n)
     return Status(StatusCode::kInternal,
@@ -614,7 +624,7 @@ StatusOr<int64_t> AnchorModel::rebuild_links(uint64_t seed) {
     return Status(StatusCode::kInternal, "links: '" + m.link_strategy->type_name() +
                                              "' returned links that are not a one-hop one-to-one "
                                              "matching of active anchors");
-  m.links = links;
+  m.links = links.to(m.anchor.device());
   return roots.numel();
 }
 torch::Tensor AnchorModel::links() const {
@@ -664,13 +674,16 @@ QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantStep
   const Impl& m = *impl_;
   const int64_t K = m.K;
   QuantizedAttributes q;
-  const auto masks = offset_masks();  // [N, K]
+  // On the CPU whatever the model's device: the codec's arithmetic (kPortable) is the CPU's, and
+  // the encoder reads these tensors. set_quantized moves what it renders to the model's device.
+  const auto cpu = [](const torch::Tensor& t) { return t.detach().to(torch::kCPU); };
+  const auto masks = cpu(offset_masks());  // [N, K]
   q.active = masks.any(1);
-  q.index = index.defined() ? index.to(torch::kLong) : q.active.nonzero().squeeze(1);
+  q.index = index.defined() ? cpu(index).to(torch::kLong) : q.active.nonzero().squeeze(1);
   const float v = float(m.voxel);
   const auto vt = torch::tensor(v);
-  q.positions = torch::round(m.anchor.index_select(0, q.index) / vt) * vt;  // [A, 3]
-  q.bounds = m.bounds.clone();
+  q.positions = torch::round(cpu(m.anchor).index_select(0, q.index) / vt) * vt;  // [A, 3]
+  q.bounds = cpu(m.bounds).clone();
   q.positions01 = normalise(q.positions, q.bounds);
   const EntropyParamLayout layout{m.features_model->coded_dim(), K};
   q.params = predict_entropy_params(context, q.positions01, layout, q0, 3000,
@@ -683,9 +696,9 @@ QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantStep
     *sym = code_symbols(x, mean, step).to(torch::kInt);
     *val = sym->to(torch::kFloat) * step;
   };
-  const auto feat = m.p(m.i_feat).detach();
-  const auto scal = torch::exp(m.p(m.i_scaling).detach());
-  const auto offs = m.p(m.i_offset).detach();
+  const auto feat = cpu(m.p(m.i_feat));
+  const auto scal = torch::exp(cpu(m.p(m.i_scaling)));
+  const auto offs = cpu(m.p(m.i_offset));
   quant(feat.index_select(0, q.index), serial_mean(feat), q.params.q_f, &q.feature_symbols,
         &q.features);
   quant(scal.index_select(0, q.index), serial_mean(scal), q.params.q_s, &q.scaling_symbols,
@@ -700,13 +713,14 @@ QuantizedAttributes AnchorModel::quantize(ContextModel& context, const QuantStep
 }
 
 void AnchorModel::set_quantized(const QuantizedAttributes& q) {
+  const auto dev = impl_->anchor.device();
   RenderValues r;
-  r.positions = q.positions;
-  r.positions01 = q.positions01;
-  r.features = q.features;
-  r.scaling = q.scaling;
-  r.offsets = q.offsets;
-  r.mask = q.offset_masks.to(torch::kFloat);
+  r.positions = q.positions.to(dev);
+  r.positions01 = q.positions01.to(dev);
+  r.features = q.features.to(dev);
+  r.scaling = q.scaling.to(dev);
+  r.offsets = q.offsets.to(dev);
+  r.mask = q.offset_masks.to(dev, torch::kFloat);
   {
     torch::NoGradGuard ng;
     r.mlp_features = impl_->features_model->forward(r.features, r.positions01).contiguous();
@@ -838,9 +852,9 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
     const EntropyParamLayout layout{m.features_model->coded_dim(), K};
     ContextModel::PartialOutput ctx;
     if (m.phase == QuantPhase::kFixedNoise) {
-      out.q_f = torch::full({M, 1}, m.rate.q0.feature);
-      out.q_s = torch::full({M, 1}, m.rate.q0.scaling);
-      out.q_o = torch::full({M, 1}, m.rate.q0.offset);
+      out.q_f = torch::full({M, 1}, m.rate.q0.feature, anchor_v.options());
+      out.q_s = torch::full({M, 1}, m.rate.q0.scaling, anchor_v.options());
+      out.q_o = torch::full({M, 1}, m.rate.q0.offset, anchor_v.options());
     } else {
       ctx = m.context->forward_partial(pos01_v, EntropyParamLayout::kStepColumns);
       EntropyParams steps;
@@ -849,19 +863,16 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
       out.q_s = steps.q_s;
       out.q_o = steps.q_o;
     }
-    auto noise = [&](const torch::Tensor& x) {
-      return torch::rand(x.sizes(), m.gen_opt(), x.options()) - 0.5;
-    };
+    auto noise = [&](const torch::Tensor& x) { return m.rand(x.sizes(), m.gen_opt()) - 0.5; };
     feat_c = feat_c + noise(feat_c) * out.q_f;
     scal_v = scal_v + noise(scal_v) * out.q_s;
     offs_v = offs_v + noise(offs_v) * out.q_o.unsqueeze(2);
     if (m.phase == QuantPhase::kAdaptiveNoise) {
       // Rate on a random subset of the visible active anchors (method.md §2.5).
-      auto mask_r = mask_v.defined() ? mask_v : torch::ones({M, K});
+      auto mask_r = mask_v.defined() ? mask_v : torch::ones({M, K}, anchor_v.options());
       auto active_v = (mask_r.detach() > 0.5).any(1);  // [M]
-      auto chosen = ((torch::rand({M}, m.gen_opt()) <= m.rate.subset) & active_v)
-                        .nonzero()
-                        .squeeze(1);  // [S]
+      auto chosen =
+          ((m.rand({M}, m.gen_opt()) <= m.rate.subset) & active_v).nonzero().squeeze(1);  // [S]
       const int64_t S = chosen.size(0);
       out.rate_subset = S;
       const double active_fraction = M > 0 ? active_v.sum().item<double>() / double(M) : 0.0;
@@ -888,7 +899,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
         const double n_elem = double(S * (feat_c.size(1) + 6 + 3 * K));
         out.bits_per_param = (b_f.sum() + b_s.sum() + b_o.sum()) / n_elem * active_fraction;
       } else {
-        out.bits_per_param = torch::zeros({});
+        out.bits_per_param = torch::zeros({}, anchor_v.options());
       }
     }
   }
@@ -901,7 +912,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   const SceneEffects& fx = m.opt.effects;
   if (fx.view_dependent || fx.distance_input) {
     const Eigen::Vector3d c = camera.center();
-    auto cam = torch::tensor({float(c[0]), float(c[1]), float(c[2])});
+    auto cam = torch::tensor({float(c[0]), float(c[1]), float(c[2])}).to(anchor_v.device());
     auto d = anchor_v - cam;         // [M, 3]
     auto dist = d.norm(2, 1, true);  // [M, 1]
     if (fx.view_dependent) parts.push_back(d / dist);
@@ -923,7 +934,8 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
   // discarded (and get no gradient).
   auto live = opacity.detach().gt(0).any(1).nonzero().squeeze(1);  // [L]
   const int64_t L = live.size(0);
-  auto live_row = torch::full({M}, -1, idx.options()).index_put_({live}, torch::arange(L));
+  auto live_row =
+      torch::full({M}, -1, idx.options()).index_put_({live}, torch::arange(L, idx.options()));
   auto row_of = live_row.index_select(0, anchor_of);  // [G], into [L], non-decreasing
   auto slot_of = keep.remainder(K);                   // [G]
   auto input_l = gather_sorted_rows(input, live);
@@ -947,7 +959,9 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
       cv.index({Slice(), Slice(3, 7)}), torch::nn::functional::NormalizeFuncOptions().dim(1));
   b.opacities = gather_sorted_rows(flat_op, keep);
   b.colors = torch::sigmoid(sparse(m.mlp_color, color_in, 3));
-  if (for_training) b.means2d_grad_holder = torch::zeros({keep.size(0), 2}).requires_grad_(true);
+  if (for_training)
+    b.means2d_grad_holder =
+        torch::zeros({keep.size(0), 2}, anchor_v.options()).requires_grad_(true);
   return out;
 }
 
@@ -957,17 +971,18 @@ void AnchorModel::accumulate_statistics(const NeuralGaussians& g, const RenderOu
   Impl& m = *impl_;
   auto idx = g.visible.nonzero().squeeze(1);
   m.opacity_accum.index_add_(0, idx, g.neural_opacity.clamp_min(0).sum(1));
-  m.anchor_demon.index_add_(0, idx, torch::ones({idx.size(0)}));
+  m.anchor_demon.index_add_(0, idx, torch::ones({idx.size(0)}, m.anchor.options()));
   if (!g.batch.means2d_grad_holder.defined() || !g.batch.means2d_grad_holder.grad().defined())
     return;
   auto rendered = (out.radii > 0).nonzero().squeeze(1);  // [R]
   // The thresholds (2e-4) are for gradients w.r.t. NDC as in 3DGS; our holder is in pixels.
   auto grad = g.batch.means2d_grad_holder.grad().index_select(0, rendered);  // [R, 2]
-  auto to_ndc = torch::tensor({0.5f * float(camera.width), 0.5f * float(camera.height)});
+  auto to_ndc = torch::tensor({0.5f * float(camera.width), 0.5f * float(camera.height)})
+                    .to(m.anchor.device());
   auto norm = (grad * to_ndc).norm(2, 1);
   auto src = g.source.index_select(0, rendered);
   m.offset_grad_accum.index_add_(0, src, norm);
-  m.offset_denom.index_add_(0, src, torch::ones({src.size(0)}));
+  m.offset_denom.index_add_(0, src, torch::ones({src.size(0)}, m.anchor.options()));
 }
 
 int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor& offset_mask,
@@ -978,13 +993,13 @@ int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor&
     const double threshold =
         opt.densify_grad_threshold * std::pow(double(opt.update_hierarchy_factor / 2), i);
     auto cand = (grads >= threshold) & offset_mask;
-    auto rnd = torch::rand({cand.size(0)}, gen) > std::pow(0.5, i + 1);
+    auto rnd = rand({cand.size(0)}, gen) > std::pow(0.5, i + 1);
     cand = cand & rnd;
     const int64_t inc = anchor.size(0) * K - init_length;
     if (inc == 0) {
       if (i > 0) continue;  // Scaffold-GS: deeper levels only after a level added anchors
     } else {
-      cand = torch::cat({cand, torch::zeros({inc}, torch::kBool)});
+      cand = torch::cat({cand, torch::zeros({inc}, cand.options())});
     }
     auto scaling = torch::exp(p(i_scaling));
     auto all_xyz = anchor.unsqueeze(1) +
@@ -1006,27 +1021,16 @@ int64_t AnchorModel::Impl::grow(const torch::Tensor& grads, const torch::Tensor&
     auto new_anchor = uniq.index_select(0, fresh_idx).to(torch::kFloat) * float(cur);
     // Feature of a new anchor: channel-wise max over the parents whose Gaussians fell into it.
     auto& feat = p(i_feat);
-    const int64_t D = feat.size(1);
     auto parent_feat = feat.detach().index_select(0, sel.div(K, "floor"));  // [S, D]
-    // (a plain loop: scatter_reduce is "beta" in libtorch 1.13 and logs a warning)
-    auto pooled = torch::full({uniq.size(0), D}, -std::numeric_limits<float>::infinity());
-    {
-      auto pf = parent_feat.contiguous();
-      auto inv = inverse.contiguous();
-      const float* src = pf.data_ptr<float>();
-      const int64_t* cell = inv.data_ptr<int64_t>();
-      float* dst = pooled.data_ptr<float>();
-      for (int64_t r = 0; r < pf.size(0); ++r)
-        for (int64_t c = 0; c < D; ++c)
-          dst[cell[r] * D + c] = std::max(dst[cell[r] * D + c], src[r * D + c]);
-    }
+    auto pooled = max_rows_into(parent_feat, inverse, uniq.size(0));
+    const auto o = anchor.options();
     append_rows(groups[size_t(i_feat)], pooled.index_select(0, fresh_idx));
-    append_rows(groups[size_t(i_offset)], torch::zeros({n_new, K, 3}));
-    append_rows(groups[size_t(i_scaling)], torch::full({n_new, 6}, std::log(cur)));
-    append_rows(groups[size_t(i_mask)], torch::ones({n_new, K}));
+    append_rows(groups[size_t(i_offset)], torch::zeros({n_new, K, 3}, o));
+    append_rows(groups[size_t(i_scaling)], torch::full({n_new, 6}, std::log(cur), o));
+    append_rows(groups[size_t(i_mask)], torch::ones({n_new, K}, o));
     anchor = torch::cat({anchor, new_anchor}, 0);
-    opacity_accum = torch::cat({opacity_accum, torch::zeros({n_new})});
-    anchor_demon = torch::cat({anchor_demon, torch::zeros({n_new})});
+    opacity_accum = torch::cat({opacity_accum, torch::zeros({n_new}, o)});
+    anchor_demon = torch::cat({anchor_demon, torch::zeros({n_new}, o)});
     grown += n_new;
   }
   return grown;
@@ -1047,8 +1051,8 @@ AdjustReport AnchorModel::adjust_anchors(int check_interval, torch::Generator ge
   m.offset_denom.masked_fill_(offset_mask, 0);
   m.offset_grad_accum.masked_fill_(offset_mask, 0);
   const int64_t pad = (m.anchor.size(0) - n_before) * K;
-  m.offset_denom = torch::cat({m.offset_denom, torch::zeros({pad})});
-  m.offset_grad_accum = torch::cat({m.offset_grad_accum, torch::zeros({pad})});
+  m.offset_denom = torch::cat({m.offset_denom, torch::zeros({pad}, m.anchor.options())});
+  m.offset_grad_accum = torch::cat({m.offset_grad_accum, torch::zeros({pad}, m.anchor.options())});
   // 3. Prune anchors seen often whose Gaussians stayed (nearly) transparent.
   auto seen = m.anchor_demon > check_interval * m.opt.success_threshold;
   auto prune = (m.opacity_accum < m.opt.min_opacity * m.anchor_demon) & seen;
@@ -1096,9 +1100,9 @@ void adam_update(torch::Tensor& param, const torch::Tensor& grad, torch::Tensor&
       "Adam: gradient or moments do not match the parameter's ", param.numel(), " elements");
   const double bc1 = 1 - std::pow(kAdamBeta1, double(step));
   const double bc2 = 1 - std::pow(kAdamBeta2, double(step));
-  const bool flat = param.scalar_type() == at::kFloat && param.is_contiguous() &&
-                    grad.scalar_type() == at::kFloat && grad.is_contiguous() &&
-                    m.scalar_type() == at::kFloat && m.is_contiguous() &&
+  const bool flat = param.device().is_cpu() && param.scalar_type() == at::kFloat &&
+                    param.is_contiguous() && grad.scalar_type() == at::kFloat &&
+                    grad.is_contiguous() && m.scalar_type() == at::kFloat && m.is_contiguous() &&
                     v.scalar_type() == at::kFloat && v.is_contiguous();
   if (!flat) {
     m.mul_(kAdamBeta1).add_(grad, 1 - kAdamBeta1);
@@ -1230,24 +1234,26 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
   if (!(voxel_size > 0) || !std::isfinite(voxel_size) || !(spatial > 0) || !std::isfinite(spatial))
     return bad("checkpoint voxel_size / spatial_lr_scale must be finite and > 0");
 
-  // Commit: nothing below can fail.
-  m.anchor = anchor;
-  m.bounds = bounds;
+  // Commit, on the model's device: nothing below can fail.
+  const auto dev = m.anchor.device();
+  const auto on = [&](const torch::Tensor& t) { return t.defined() ? t.to(dev) : t; };
+  m.anchor = on(anchor);
+  m.bounds = on(bounds);
   m.voxel = voxel_size;
   m.spatial_lr_scale = spatial;
-  m.opacity_accum = stats[0];
-  m.anchor_demon = stats[1];
-  m.offset_grad_accum = stats[2];
-  m.offset_denom = stats[3];
-  m.links = links;
+  m.opacity_accum = on(stats[0]);
+  m.anchor_demon = on(stats[1]);
+  m.offset_grad_accum = on(stats[2]);
+  m.offset_denom = on(stats[3]);
+  m.links = on(links);
   for (size_t i = 0; i < m.groups.size(); ++i) {
     ParamGroup& g = m.groups[i];
     if (g.external)
       g.param.copy_(staged[i].param);  // the component owns the tensor; same shape and dtype
     else
-      g.param = staged[i].param.requires_grad_(true);
-    g.m = staged[i].m;
-    g.v = staged[i].v;
+      g.param = on(staged[i].param).requires_grad_(true);
+    g.m = on(staged[i].m);
+    g.v = on(staged[i].v);
     g.step = staged[i].step;
   }
   m.bind_mlps();
@@ -1256,6 +1262,39 @@ Status AnchorModel::load_state_dict(const std::map<std::string, torch::Tensor>& 
 
 std::shared_ptr<FeatureModel> AnchorModel::feature_model() const {
   return impl_->features_model;
+}
+
+torch::Device AnchorModel::device() const {
+  return impl_->anchor.device();
+}
+
+void AnchorModel::to(const torch::Device& device) {
+  Impl& m = *impl_;
+  if (m.anchor.device() == device) return;
+  torch::NoGradGuard ng;
+  auto move = [&](torch::Tensor& t) {
+    if (t.defined()) t = t.to(device);
+  };
+  for (auto* t : {&m.anchor, &m.bounds, &m.links, &m.opacity_accum, &m.anchor_demon,
+                  &m.offset_grad_accum, &m.offset_denom})
+    move(*t);
+  for (auto& g : m.groups) {
+    if (g.external) {
+      // The component holds this tensor: swap its storage in place so that the component sees it.
+      g.param.set_data(g.param.detach().to(device));
+    } else {
+      g.param = g.param.detach().to(device).requires_grad_(true);
+    }
+    g.param.mutable_grad().reset();
+    move(g.m);
+    move(g.v);
+  }
+  m.bind_mlps();
+  for (auto* rv : {&m.over, &m.decoded})
+    if (*rv)
+      for (auto* t : {&(*rv)->positions, &(*rv)->positions01, &(*rv)->features, &(*rv)->scaling,
+                      &(*rv)->offsets, &(*rv)->mask, &(*rv)->mlp_features})
+        move(*t);
 }
 
 }  // namespace crpgs

@@ -213,12 +213,30 @@ struct SparseMlp : public torch::autograd::Function<SparseMlp> {
 
 }  // namespace
 
+torch::Tensor chunked_mlp_reference(const torch::Tensor& x, const torch::Tensor& w1,
+                                    const torch::Tensor& b1, const torch::Tensor& w2,
+                                    const torch::Tensor& b2) {
+  return torch::addmm(b2, torch::relu(torch::addmm(b1, x, w1.t())), w2.t());
+}
+
+torch::Tensor sparse_mlp_reference(const torch::Tensor& x, const torch::Tensor& w1,
+                                   const torch::Tensor& b1, const torch::Tensor& w2,
+                                   const torch::Tensor& b2, const torch::Tensor& row,
+                                   const torch::Tensor& slot, int64_t outputs_per_slot) {
+  // Every slot's outputs, then each Gaussian's: K times the output layer's work, which a GPU
+  // does in one GEMM sooner than it gathers per-Gaussian weights.
+  const int64_t K = w2.size(0) / outputs_per_slot;
+  const auto y = chunked_mlp_reference(x, w1, b1, w2, b2);  // [rows, K*O]
+  return y.reshape({-1, outputs_per_slot}).index_select(0, row * K + slot);
+}
+
 torch::Tensor sparse_mlp(const torch::Tensor& x, const torch::Tensor& w1, const torch::Tensor& b1,
                          const torch::Tensor& w2, const torch::Tensor& b2, const torch::Tensor& row,
                          const torch::Tensor& slot, int64_t outputs_per_slot) {
   const int64_t O = outputs_per_slot;
+  if (!x.device().is_cpu()) return sparse_mlp_reference(x, w1, b1, w2, b2, row, slot, O);
   for (const auto* t : {&x, &w1, &b1, &w2, &b2, &row, &slot})
-    TORCH_CHECK(t->device().is_cpu(), "sparse_mlp: CPU tensors only");
+    TORCH_CHECK(t->device().is_cpu(), "sparse_mlp: tensors on more than one device");
   TORCH_CHECK(x.scalar_type() == at::kFloat && w1.scalar_type() == at::kFloat &&
                   w2.scalar_type() == at::kFloat && b1.scalar_type() == at::kFloat &&
                   b2.scalar_type() == at::kFloat,
@@ -257,6 +275,7 @@ torch::Tensor chunked_mlp(const torch::Tensor& x, const torch::Tensor& w1, const
                   w2.size(1) == w1.size(0) && b1.numel() == w1.size(0) && b2.numel() == w2.size(0),
               "chunked_mlp: shapes do not chain (x ", x.sizes(), ", w1 ", w1.sizes(), ", w2 ",
               w2.sizes(), ")");
+  if (!x.device().is_cpu()) return chunked_mlp_reference(x, w1, b1, w2, b2);
   const bool grad = torch::GradMode::is_enabled() &&
                     (x.requires_grad() || w1.requires_grad() || b1.requires_grad() ||
                      w2.requires_grad() || b2.requires_grad());

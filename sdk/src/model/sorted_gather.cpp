@@ -8,6 +8,7 @@
 #include <ATen/Parallel.h>
 
 #include <algorithm>
+#include <limits>
 
 namespace crpgs {
 namespace {
@@ -111,8 +112,37 @@ struct GatherSortedRows : public torch::autograd::Function<GatherSortedRows> {
 torch::Tensor gather_sorted_rows(const torch::Tensor& src, const torch::Tensor& index) {
   TORCH_CHECK(src.dim() >= 1 && index.dim() == 1 && index.scalar_type() == at::kLong,
               "gather_sorted_rows: expected rows of a tensor and a 1-D long index");
-  if (!src.requires_grad() || !torch::GradMode::is_enabled()) return src.index_select(0, index);
+  // Off the CPU index_select's own backward (a parallel scatter-add there).
+  if (!src.requires_grad() || !torch::GradMode::is_enabled() || !src.device().is_cpu())
+    return src.index_select(0, index);
   return GatherSortedRows::apply(src, index);
+}
+
+torch::Tensor max_rows_into(const torch::Tensor& src, const torch::Tensor& cell, int64_t rows) {
+  TORCH_CHECK(src.dim() == 2 && cell.dim() == 1 && cell.size(0) == src.size(0) &&
+                  src.scalar_type() == at::kFloat && cell.scalar_type() == at::kLong,
+              "max_rows_into: expected float rows [S, D] and a long cell index [S]");
+  if (!src.device().is_cpu()) return max_rows_into_reference(src, cell, rows);
+  // A plain loop: scatter_reduce is "beta" in libtorch 1.13 and logs a warning on the CPU.
+  const int64_t D = src.size(1);
+  auto out = torch::full({rows, D}, -std::numeric_limits<float>::infinity(), src.options());
+  const auto pf = src.detach().contiguous();
+  const auto inv = cell.contiguous();
+  const float* s = pf.data_ptr<float>();
+  const int64_t* c = inv.data_ptr<int64_t>();
+  float* dst = out.data_ptr<float>();
+  for (int64_t r = 0; r < pf.size(0); ++r) {
+    TORCH_CHECK(c[r] >= 0 && c[r] < rows, "max_rows_into: cell ", c[r], " is out of range");
+    for (int64_t k = 0; k < D; ++k) dst[c[r] * D + k] = std::max(dst[c[r] * D + k], s[r * D + k]);
+  }
+  return out;
+}
+
+torch::Tensor max_rows_into_reference(const torch::Tensor& src, const torch::Tensor& cell,
+                                      int64_t rows) {
+  auto out =
+      torch::full({rows, src.size(1)}, -std::numeric_limits<float>::infinity(), src.options());
+  return out.scatter_reduce_(0, cell.unsqueeze(1).expand_as(src), src.detach(), "amax", true);
 }
 
 }  // namespace crpgs

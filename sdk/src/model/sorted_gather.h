@@ -1,5 +1,6 @@
 /// @file sorted_gather.h
-/// @brief Row gathers by a non-decreasing index (what nonzero() gives), with a cheaper backward.
+/// @brief Row gathers by a non-decreasing index (what nonzero() gives), with a cheaper backward,
+/// and the row max-pool of anchor growing.
 #pragma once
 
 #include <torch/types.h>
@@ -12,5 +13,12 @@ namespace crpgs {
 /// by row on one thread. Same values bit for bit. Where it records a gradient it throws on a
 /// negative, decreasing or out-of-range index.
 torch::Tensor gather_sorted_rows(const torch::Tensor& src, const torch::Tensor& index);
+
+/// out [rows, D]: out[c] = the element-wise max of src's rows r with cell[r] = c (src [S, D]
+/// float, cell [S] long in [0, rows)); -inf in a row no r maps to. No gradient.
+torch::Tensor max_rows_into(const torch::Tensor& src, const torch::Tensor& cell, int64_t rows);
+/// The same as one scatter_reduce (the path off the CPU).
+torch::Tensor max_rows_into_reference(const torch::Tensor& src, const torch::Tensor& cell,
+                                      int64_t rows);
 
 }  // namespace crpgs

@@ -132,6 +132,10 @@ const std::vector<CoreSection>& core_sections() {
                  "also checkpoint after this many minutes of training since the last one; 0 = off"),
                0, 1e6),
            range(P("threads", T::kInt, YAML::Node(0), "CPU threads; 0 = all cores"), 0, 1024),
+           choice(P("device", T::kChoice, YAML::Node("cpu"),
+                    "where the model's tensors live: cpu, or cuda (a GPU; needs the cuda "
+                    "rasterizer and a CUDA-enabled libtorch)"),
+                  {"cpu", "cuda"}),
            range(P("lr_offset", T::kFloat, YAML::Node(0.01), "offset lr (x spatial scale)"), 0, 10),
            range(P("lr_offset_final", T::kFloat, YAML::Node(0.0001), "final offset lr"), 0, 10),
            range(P("lr_mask", T::kFloat, YAML::Node(0.01), "mask lr (x spatial scale)"), 0, 10),

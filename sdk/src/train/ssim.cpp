@@ -115,9 +115,34 @@ struct SsimFunction : public torch::autograd::Function<SsimFunction> {
   }
 };
 
+// The window as two depthwise convolutions over [1, C, H, W] planes (zero padding).
+at::Tensor blur_planes(const at::Tensor& planes) {
+  const auto g = ssim_window::taps<double>();
+  const auto w = torch::tensor(std::vector<double>(g.begin(), g.end())).to(planes.options());
+  const int64_t C = planes.size(1), r = ssim_window::kRadius;
+  const auto rows = torch::conv2d(planes, w.view({1, 1, 1, -1}).expand({C, 1, 1, w.size(0)}), {}, 1,
+                                  at::IntArrayRef({0, r}), 1, C);
+  return torch::conv2d(rows, w.view({1, 1, -1, 1}).expand({C, 1, w.size(0), 1}), {}, 1,
+                       at::IntArrayRef({r, 0}), 1, C);
+}
+
 }  // namespace
 
+torch::Tensor tensor_ssim_reference(const torch::Tensor& a, const torch::Tensor& b) {
+  TORCH_CHECK(a.dim() == 3 && a.sizes() == b.sizes() && a.numel() > 0,
+              "tensor_ssim: expected two non-empty [H, W, C] images of one size");
+  TORCH_CHECK(!b.requires_grad(), "tensor_ssim: the reference image takes no gradient");
+  auto planes = [](const torch::Tensor& t) { return t.permute({2, 0, 1}).unsqueeze(0); };
+  const auto x = planes(a), y = planes(b.detach());
+  const auto mx = blur_planes(x), my = blur_planes(y);
+  const auto vx = blur_planes(x * x) - mx * mx, vy = blur_planes(y * y) - my * my;
+  const auto cxy = blur_planes(x * y) - mx * my;
+  const double c1 = ssim_window::kC1, c2 = ssim_window::kC2;
+  return ((2 * mx * my + c1) * (2 * cxy + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2))).mean();
+}
+
 torch::Tensor tensor_ssim(const torch::Tensor& a, const torch::Tensor& b) {
+  if (!a.device().is_cpu()) return tensor_ssim_reference(a, b);
   return SsimFunction::apply(a, b);
 }
 

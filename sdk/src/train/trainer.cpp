@@ -35,7 +35,7 @@ torch::Tensor image_to_tensor(const Image& im) {
 }
 
 Image tensor_to_image(const torch::Tensor& t) {
-  auto c = t.detach().to(torch::kFloat).clamp(0, 1).contiguous();
+  auto c = t.detach().to(torch::kCPU, torch::kFloat).clamp(0, 1).contiguous();
   Image im;
   im.height = int(c.size(0));
   im.width = int(c.size(1));
@@ -87,7 +87,7 @@ Schedule Schedule::scaled_by(double factor) const {
 }
 
 double tensor_psnr(const torch::Tensor& a, const torch::Tensor& b) {
-  const double mse = (a.detach() - b.detach()).pow(2).mean().item<double>();
+  const double mse = (a.detach() - b.detach().to(a.device())).pow(2).mean().item<double>();
   return mse > 0 ? -10.0 * std::log10(mse) : std::numeric_limits<double>::infinity();
 }
 
@@ -101,7 +101,8 @@ Trainer::Trainer(TrainOptions options, Dataset dataset, std::shared_ptr<Rasteriz
       rasterizer_(std::move(rasterizer)),
       model_(std::move(model)),
       gen_(std::move(gen)) {
-  for (const auto& v : dataset_.train) train_images_.push_back(image_to_tensor(v.image));
+  for (const auto& v : dataset_.train)
+    train_images_.push_back(image_to_tensor(v.image).to(model_->device()));
   trace_view_count_ = int(std::min<size_t>(kMaxTraceViews, dataset_.test.size()));
   model_->set_generator(gen_);  // noise and rate subsets: checkpointed with the trainer's RNG
 }
@@ -271,8 +272,9 @@ std::string tensor_text(const torch::Tensor& t) {
 StatusOr<std::string> Trainer::serialize_state() const {
   try {
     torch::serialize::OutputArchive ar;
+    // CPU tensors: a checkpoint loads on any machine, and resumes on either device.
     for (const auto& kv : model_->state_dict())
-      ar.write(archive_key("model." + kv.first), kv.second);
+      ar.write(archive_key("model." + kv.first), kv.second.to(torch::kCPU));
     ar.write("iteration", torch::tensor(int64_t(iteration_), torch::kLong));
     ar.write("anchors", torch::tensor(model_->num_anchors(), torch::kLong));
     ar.write("rng", gen_.get_state());
@@ -841,6 +843,7 @@ StatusOr<TrainOptions> train_options_from_config(const Config& resolved) {
     o.checkpoint_interval = get(t, "checkpoint_interval", o.checkpoint_interval);
     o.checkpoint_minutes = get(t, "checkpoint_minutes", o.checkpoint_minutes);
     o.threads = get(t, "threads", o.threads);
+    o.device = get<std::string>(t, "device", o.device);
     o.config_hash = hex64(resolved.hash());
     o.prefix_key = shared_prefix_key(resolved);
   } catch (const YAML::Exception& e) {
@@ -929,6 +932,21 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
   if (rate.context || rate.entropy)
     CRPGS_RETURN_IF_ERROR((*model)->attach_rate(rate.context, rate.entropy, rate.options));
   if (rate.links) CRPGS_RETURN_IF_ERROR((*model)->attach_links(rate.links, rate.link_options, gen));
+  // Built on the CPU (the same initial values on every device), then moved.
+  if (train_options.device == "cuda") {
+    if (!torch::cuda::is_available())
+      return Status(StatusCode::kInvalidConfig,
+                    "train.device: cuda, but this libtorch sees no CUDA device (a CPU-only "
+                    "build, or no GPU); use train.device: cpu");
+    if (rasterizer->type_name() != "cuda")
+      return Status(StatusCode::kInvalidConfig,
+                    "train.device: cuda needs rasterizer.type: cuda (the '" +
+                        rasterizer->type_name() + "' rasterizer takes CPU tensors)");
+    (*model)->to(torch::Device(torch::kCUDA));
+  } else if (train_options.device != "cpu") {
+    return Status(StatusCode::kInvalidConfig,
+                  "train.device: unknown '" + train_options.device + "' (available: cpu, cuda)");
+  }
   return std::make_unique<Trainer>(train_options, std::move(dataset), std::move(rasterizer),
                                    std::move(model).value(), gen);
 }
