@@ -336,15 +336,20 @@ at::Tensor binarize_values(const at::Tensor& table) {
   return at::where(table.ge(0), at::ones_like(table), -at::ones_like(table));
 }
 
+namespace {
+// The values a lookup reads: the table, or with binarize exactly ±1 forward and the gradient
+// where |table| <= 1 backward (straight through).
+at::Tensor lookup_values(const at::Tensor& table, bool binarize) {
+  if (!binarize) return table;
+  const auto mask = table.detach().abs().le(1).to(table.scalar_type());
+  return binarize_values(table.detach()) + (table - table.detach()) * mask;
+}
+}  // namespace
+
 at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
                                   const at::Tensor& table, bool binarize) {
   check_inputs(spec, positions01, table);
-  at::Tensor values = table;
-  if (binarize) {
-    // Forward: exactly ±1. Backward: the gradient where |table| <= 1 (straight through).
-    const auto mask = table.detach().abs().le(1).to(table.scalar_type());
-    values = binarize_values(table.detach()) + (table - table.detach()) * mask;
-  }
+  const at::Tensor values = lookup_values(table, binarize);
   const auto pos = positions01.detach().to(table.scalar_type());
   const int64_t n = pos.size(0);
   std::vector<at::Tensor> outs;
@@ -392,6 +397,87 @@ at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positi
   }
   if (outs.empty()) return at::zeros({n, 0}, values.options());
   return at::cat(outs, 1);
+}
+
+at::Tensor grid_forward_batched(const GridSpec& spec, const at::Tensor& positions01,
+                                const at::Tensor& table, bool binarize) {
+  check_inputs(spec, positions01, table);
+  const at::Tensor values = lookup_values(table, binarize);
+  const auto pos = positions01.detach().to(table.scalar_type());
+  const int64_t n = pos.size(0), F = spec.n_features, L = int64_t(spec.levels.size());
+  if (L == 0) return at::zeros({n, 0}, values.options());
+  const auto iopt = at::TensorOptions().dtype(at::kLong).device(pos.device());
+  std::vector<at::Tensor> groups;  // [G, n, F] per dimension, levels in spec order inside
+  std::vector<int64_t> order;      // the levels in the order of `groups`
+  for (int dim : {3, 2}) {
+    std::vector<int64_t> ids, axes, res, offset, size;
+    std::vector<uint8_t> dense;
+    for (int64_t l = 0; l < L; ++l) {
+      const GridLevel& lv = spec.levels[size_t(l)];
+      if (lv.dim != dim) continue;
+      ids.push_back(l);
+      axes.insert(axes.end(), lv.axes, lv.axes + dim);
+      res.push_back(lv.res);
+      offset.push_back(lv.offset);
+      size.push_back(lv.size);
+      dense.push_back(lv.dense ? 1 : 0);
+    }
+    if (ids.empty()) continue;
+    const int64_t G = int64_t(ids.size());
+    auto level_col = [&](const std::vector<int64_t>& v) {
+      return at::tensor(v, iopt).view({G, 1});
+    };
+    const auto res_l = level_col(res), offset_l = level_col(offset), size_l = level_col(size);
+    const auto dense_l = level_col(std::vector<int64_t>(dense.begin(), dense.end())).ne(0);
+    const auto res_m2 = (res_l - 2).to(pos.scalar_type()).unsqueeze(2);  // [G, 1, 1]
+    // u [G, n, dim]: each level's coordinates.
+    auto u = pos.t().index_select(0, at::tensor(axes, iopt)).view({G, dim, n}).permute({0, 2, 1});
+    const auto inside = u.ge(0).logical_and(u.le(1)).all(2);  // [G, n]; NaN compares false
+    u = at::where(inside.unsqueeze(2), u, at::zeros_like(u));
+    const auto p = u * res_m2 + 0.5;
+    const auto fl = at::floor(p);
+    const auto frac = p - fl;
+    const auto g = fl.to(at::kLong);
+    // Per corner the reference's operations in its order, on all levels at once: the same
+    // values bit for bit, with 1/L of its kernel launches (what a GPU is bound by here).
+    std::vector<at::Tensor> ws, rows;
+    auto sum = at::zeros({G, n}, pos.options());
+    for (int c = 0; c < (1 << dim); ++c) {
+      auto w = at::ones({G, n}, pos.options());
+      auto border = at::zeros({G, n}, pos.options().dtype(at::kBool));
+      auto dense_idx = at::zeros({G, n}, iopt);
+      auto hash = at::zeros({G, n}, iopt);
+      auto stride = at::ones({G, 1}, iopt);
+      for (int d = 0; d < dim; ++d) {
+        auto id = g.select(2, d);
+        if (c & (1 << d)) {
+          w = w * frac.select(2, d);
+          id = at::minimum(id + 1, res_l - 1);
+        } else {
+          w = w * (1 - frac.select(2, d));
+        }
+        border = border.logical_or(id.eq(0)).logical_or(id.eq(res_l - 1));
+        dense_idx = dense_idx + id * stride;
+        stride = stride * res_l;
+        hash = at::bitwise_xor(hash, (id * int64_t(kPrimes[d])).bitwise_and(int64_t(0xFFFFFFFF)));
+      }
+      w = at::where(border, at::zeros_like(w), w);
+      sum = sum + w;
+      ws.push_back(w);
+      rows.push_back(at::where(dense_l, dense_idx, hash).remainder(size_l) + offset_l);
+    }
+    const auto denom = at::where(sum.eq(0), at::full_like(sum, 1e-9), sum);
+    auto out = at::zeros({G, n, F}, values.options());
+    for (size_t c = 0; c < ws.size(); ++c)
+      out = out + (ws[c] / denom).unsqueeze(2) *
+                      values.index_select(0, rows[c].reshape({-1})).view({G, n, F});
+    groups.push_back(at::where(inside.unsqueeze(2), out, at::zeros_like(out)));
+    order.insert(order.end(), ids.begin(), ids.end());
+  }
+  std::vector<int64_t> slot(size_t(L), 0);  // level l is groups' row slot[l]
+  for (size_t i = 0; i < order.size(); ++i) slot[size_t(order[i])] = int64_t(i);
+  const auto levels = at::cat(groups, 0).index_select(0, at::tensor(slot, iopt));  // [L, n, F]
+  return levels.permute({1, 0, 2}).reshape({n, L * F});
 }
 
 }  // namespace crpgs::hash_grid
