@@ -69,8 +69,6 @@ TEST(HashGridKernels, ForwardMatchesReferenceFloat64) {
     // contraction), which is what makes encoder and decoder agree on any machine.
     EXPECT_TRUE(torch::equal(out, ref))
         << "binarize " << binarize << ", max difference " << (out - ref).abs().max().item<double>();
-    EXPECT_TRUE(torch::equal(hash_grid::grid_forward_batched(s, pos, table, binarize), ref))
-        << "binarize " << binarize;
     EXPECT_GT(out.abs().max().item<double>(), 0.1);
   }
 }
@@ -82,7 +80,6 @@ TEST(HashGridKernels, ForwardMatchesReferenceFloat32HacLayout) {
   const auto out = hash_grid::grid_forward(s, pos, table, true);
   const auto ref = hash_grid::grid_forward_reference(s, pos, table, true);
   EXPECT_TRUE(torch::equal(out, ref)) << "max difference " << (out - ref).abs().max().item<float>();
-  EXPECT_TRUE(torch::equal(hash_grid::grid_forward_batched(s, pos, table, true), ref));
   EXPECT_LE(out.abs().max().item<float>(), 1.0f + 1e-5f);  // convex combination of ±1
 }
 
@@ -114,9 +111,6 @@ TEST(HashGridKernels, BackwardMatchesReferenceWithStraightThroughMask) {
     const auto expected = table.grad();
     const auto got = hash_grid::grid_backward(s, pos, init, grad_out, binarize);
     EXPECT_LT((got - expected).abs().max().item<double>(), 1e-10) << "binarize " << binarize;
-    auto table_b = init.clone().requires_grad_(true);
-    hash_grid::grid_forward_batched(s, pos, table_b, binarize).backward(grad_out);
-    EXPECT_LT((table_b.grad() - got).abs().max().item<double>(), 1e-10) << "binarize " << binarize;
     EXPECT_GT(got.abs().max().item<double>(), 0.0);
     if (binarize) {
       const auto outside = init.abs().gt(1);
@@ -176,7 +170,6 @@ TEST(HashGridKernels, OutOfBoundsLevelsReadZeroAndStayFinite) {
       EXPECT_GT(out.slice(1, yz_begin).abs().sum(1).min().item<double>(), 0.0);
     }
     EXPECT_LT((out - ref).abs().max().item<double>(), 1e-12);
-    EXPECT_TRUE(torch::equal(hash_grid::grid_forward_batched(s, pos, table, binarize), ref));
     const auto grad = hash_grid::grid_backward(s, pos, table, torch::ones_like(out), binarize);
     EXPECT_TRUE(torch::isfinite(grad).all().item<bool>());
   }

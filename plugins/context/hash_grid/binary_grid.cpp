@@ -152,7 +152,7 @@ torch::Tensor grid_lookup(const GridSpec& spec, const torch::Tensor& positions01
                           const torch::Tensor& table, bool binarize) {
   const auto pos = positions01.to(table.device(), table.scalar_type());  // [N, 3]
   if (table.device().is_cpu()) return GridFunction::apply(pos, table, &spec, binarize);
-  return grid_forward_batched(spec, pos, table, binarize);
+  return grid_forward_reference(spec, pos, table, binarize);
 }
 
 torch::Tensor table_bits(const torch::Tensor& table, bool binarize) {

@@ -52,14 +52,10 @@ at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
                          const at::Tensor& table, const at::Tensor& grad_out, bool binarize);
 
 /// The same maths in ATen ops, any device, differentiable w.r.t. table through autograd
-/// (straight-through estimator included); positions are treated as constants.
+/// (straight-through estimator included); positions are treated as constants. The levels of one
+/// dimension go together (two passes, not one per level). What grid_lookup runs off the CPU.
 at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
                                   const at::Tensor& table, bool binarize);
-
-/// grid_forward_reference with the levels of one dimension batched: the same values bit for bit
-/// and gradients, in ~1/L of the ATen calls. What grid_lookup runs off the CPU.
-at::Tensor grid_forward_batched(const GridSpec& spec, const at::Tensor& positions01,
-                                const at::Tensor& table, bool binarize);
 
 /// sign(x) with HAC's convention (+1 where x >= 0, else -1), forward value of the binarisation.
 at::Tensor binarize_values(const at::Tensor& table);
