@@ -77,6 +77,12 @@ StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
   return trainer;
 }
 
+SetupOptions reading_setup(const std::string& run_dir) {
+  SetupOptions o{run_dir, !run_dir.empty()};
+  o.model_on_cpu = true;
+  return o;
+}
+
 namespace {
 namespace fs = std::filesystem;
 
@@ -238,7 +244,7 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
       if (trained && now && !same_yaml(trained[k], now[k])) s.train_views_as_trained = false;
   }
   CRPGS_ASSIGN_OR_RETURN(s.setup,
-                         setup_training_and_warn(cfg, r, SetupOptions{run ? source : "", run}));
+                         setup_training_and_warn(cfg, r, reading_setup(run ? source : "")));
   if (run && s.setup->iteration() == 0)
     return Status(StatusCode::kNotFound, "no checkpoint in " + source + " (train first)");
   if (run && s.setup->model().has_rate()) {

@@ -64,6 +64,9 @@ Status check_output_is_not_input(const std::string& out, const std::string& sour
 StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
                                                            const ComponentRegistry& registry,
                                                            const SetupOptions& options);
+/// The set-up of a command that reads a run's model (from run_dir's checkpoint; "" = none)
+/// instead of training it: the model on the CPU, whatever device it was trained on.
+SetupOptions reading_setup(const std::string& run_dir);
 
 /// The model file of a `crpgs decode` directory (next to its config.yaml).
 constexpr const char* kDecodedModelFile = "decoded.pt";

@@ -211,7 +211,7 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
   auto cfg = load_config(run_dir + "/config.yaml", g, r);
   if (!cfg.ok()) return report_error(cfg.status());
   if (Status st = check_dataset(cfg.value()); !st.ok()) return report_error(st);
-  auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
+  auto trainer = setup_training_and_warn(cfg.value(), r, reading_setup(run_dir));
   if (!trainer.ok()) return report_error(trainer.status());
   if (trainer.value()->iteration() == 0)
     return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));

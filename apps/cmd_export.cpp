@@ -181,7 +181,7 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
   auto options = model_options_from_config(cfg.value());
   if (!options.ok()) return report_error(options.status());
   // The dataset and rasterizer exactly as the config sets them up (its model is not used).
-  auto setup = setup_training_and_warn(cfg.value(), r, SetupOptions{});
+  auto setup = setup_training_and_warn(cfg.value(), r, reading_setup(""));
   if (!setup.ok()) return report_error(setup.status());
   auto ev = evaluate_ply(ply.value(), setup.value()->rasterizer(), setup.value()->dataset().test,
                          options->effects.background, png_dir);

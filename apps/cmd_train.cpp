@@ -269,7 +269,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     auto cfg = load_config(run_dir + "/config.yaml", g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
     if (Status st = check_dataset(cfg.value()); !st.ok()) throw CLI::RuntimeError(report_error(st));
-    auto trainer = setup_training_and_warn(cfg.value(), r, SetupOptions{run_dir, true});
+    auto trainer = setup_training_and_warn(cfg.value(), r, reading_setup(run_dir));
     if (!trainer.ok()) throw CLI::RuntimeError(report_error(trainer.status()));
     if (trainer.value()->iteration() == 0)
       throw CLI::RuntimeError(report_error(

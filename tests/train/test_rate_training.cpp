@@ -186,6 +186,13 @@ TEST(RateTraining, TrainingDeviceIsTheCpuUnlessCudaIsAvailable) {
       << t.status().to_string();
   EXPECT_NE(t.status().message().find("no CUDA device"), std::string::npos)
       << t.status().to_string();
+  // Commands that read a trained model (eval, encode, render, export) keep it on the CPU: a run
+  // trained on a GPU is read on a machine without one.
+  SetupOptions reading;
+  reading.model_on_cpu = true;
+  auto read = setup_training(resolved.value(), test::rate_registry(), reading);
+  ASSERT_TRUE(read.ok()) << read.status().to_string();
+  EXPECT_TRUE((*read)->model().device().is_cpu());
   // A device that does not exist is the schema's error, naming the choices.
   auto bad = Config::from_string(base + "train: {device: tpu}\n", "tpu.yaml");
   ASSERT_TRUE(bad.ok());

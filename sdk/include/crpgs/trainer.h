@@ -305,6 +305,9 @@ struct SetupOptions {
   /// prefix_dir/<shared_prefix_key>.pt when present (an unusable one is renamed *.unusable), and
   /// every run publishes it at schedule.rate_start when absent. "" = off.
   std::string prefix_dir{};  // {}: SetupOptions{dir, resume} may leave it out
+  /// Keep the model on the CPU whatever train.device says: for commands that read a trained
+  /// model (evaluate, encode, render, export) rather than train it.
+  bool model_on_cpu = false;
 };
 
 /// Wires everything from a resolved config: dataset (or the synthetic scene), rasterizer and

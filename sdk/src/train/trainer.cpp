@@ -958,6 +958,7 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
   CRPGS_ASSIGN_OR_RETURN(TrainOptions train_options, train_options_from_config(resolved));
   CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions model_options, model_options_from_config(resolved));
   train_options.output_dir = setup.output_dir;
+  if (setup.model_on_cpu) train_options.device = "cpu";
   if (!setup.prefix_dir.empty() && !train_options.prefix_key.empty())
     train_options.prefix_path = shared_prefix_path(setup.prefix_dir, train_options.prefix_key);
   // 2. Threads (libtorch starts with one here) and the allocator.
