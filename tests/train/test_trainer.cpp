@@ -132,6 +132,22 @@ TEST(Ssim, ValueAndGradientMatchAutogradOfTheConvolutionForm) {
   }
 }
 
+// In float, as a GPU runs it: the convolution form against the CPU kernel.
+TEST(Ssim, FloatReferenceMatchesTheCpuKernel) {
+  torch::manual_seed(4);
+  auto gt = torch::rand({45, 61, 3});
+  auto base = (gt + 0.15 * torch::randn({45, 61, 3})).clamp(0, 1);
+  auto x = base.clone().requires_grad_(true), xr = base.clone().requires_grad_(true);
+  auto s = tensor_ssim(x, gt), sr = tensor_ssim_reference(xr, gt);
+  s.backward();
+  sr.backward();
+  EXPECT_NEAR(s.item<double>(), sr.item<double>(), 1e-5);
+  const double scale = xr.grad().abs().max().item<double>();
+  EXPECT_GT(scale, 0.0);
+  EXPECT_LT((x.grad() - xr.grad()).abs().max().item<double>(), 1e-3 * scale);
+  EXPECT_THROW(tensor_ssim_reference(x, gt.clone().requires_grad_(true)), c10::Error);
+}
+
 // A view (not contiguous) gives the same; a reference that takes a gradient is refused.
 TEST(Ssim, AcceptsViewsAndRefusesAGradientOnTheReference) {
   auto gt = torch::rand({3, 20, 30}).permute({1, 2, 0});
