@@ -328,6 +328,26 @@ bool same_state(Trainer& a, Trainer& b) {
   return true;
 }
 
+// train.device joined the config after fern's sweeps had published prefixes: its default leaves
+// a CPU run's key as the builds before it computed it (their prefixes and running sweeps go on),
+// a GPU run gets its own.
+TEST(RateTraining, PrefixKeyLeavesTheDefaultDeviceOut) {
+  SKIP_WITHOUT_PLUGINS();
+  const Config cpu = prefix_test_config(0.004, 3);
+  YAML::Node tree = YAML::Load(cpu.dump());
+  ASSERT_EQ(tree["train"]["device"].as<std::string>(), "cpu");
+  tree["train"].remove("device");
+  YAML::Emitter older_text;
+  older_text << tree;
+  const auto older = Config::from_string(older_text.c_str(), "older.yaml");
+  ASSERT_TRUE(older.ok()) << older.status().to_string();
+  EXPECT_NE(older->hash(), cpu.hash());
+  EXPECT_EQ(shared_prefix_key(older.value()), shared_prefix_key(cpu));
+  auto gpu = Config::from_string(cpu.dump(), "gpu.yaml");  // a copy: Config shares its nodes
+  ASSERT_TRUE(gpu.ok() && gpu->apply_override("train.device=cuda").ok());
+  EXPECT_NE(shared_prefix_key(gpu.value()), shared_prefix_key(cpu));
+}
+
 // Nothing reads the rate weights up to rate_start, so a run that starts from another run's
 // published state there ends bit-identical to the same run trained from the start.
 TEST(RateTraining, SharedPrefixContinuesExactlyLikeTrainingFromTheStart) {

@@ -1,7 +1,10 @@
 /// @file shared_prefix.cpp
 #include "crpgs/shared_prefix.h"
 
+#include <yaml-cpp/yaml.h>
+
 #include <filesystem>
+#include <string>
 
 #include "crpgs/hashing.h"
 
@@ -9,7 +12,15 @@ namespace crpgs {
 
 std::string shared_prefix_key(const Config& resolved) {
   if (!resolved.section("context")) return "";
-  auto blanked = Config::from_string(resolved.dump(), "<prefix key>");
+  // train.device: cpu, the default, is left out: the keys of CPU runs stay those of the builds
+  // before the key existed, whose published prefixes and running sweeps they continue.
+  YAML::Node tree = YAML::Load(resolved.dump());
+  if (tree["train"] && tree["train"]["device"] &&
+      tree["train"]["device"].as<std::string>() == "cpu")
+    tree["train"].remove("device");
+  YAML::Emitter out;
+  out << tree;
+  auto blanked = Config::from_string(out.c_str(), "<prefix key>");
   if (!blanked.ok()) return "";
   // Thread counts are not part of the training either (like the BLAS kernels, they change only
   // the last bits): a sweep run on other thread counts continues the same prefixes.
