@@ -357,8 +357,7 @@ at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positi
   std::vector<at::Tensor> groups;  // [G, n, F] per dimension, levels in spec order inside
   std::vector<int64_t> order;      // the levels in the order of `groups`
   for (int dim : {3, 2}) {
-    std::vector<int64_t> ids, axes, res, offset, size;
-    std::vector<uint8_t> dense;
+    std::vector<int64_t> ids, axes, res, offset, size, dense;
     for (int64_t l = 0; l < L; ++l) {
       const GridLevel& lv = spec.levels[size_t(l)];
       if (lv.dim != dim) continue;
@@ -367,7 +366,7 @@ at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positi
       res.push_back(lv.res);
       offset.push_back(lv.offset);
       size.push_back(lv.size);
-      dense.push_back(lv.dense ? 1 : 0);
+      dense.push_back(lv.dense);
     }
     if (ids.empty()) continue;
     const int64_t G = int64_t(ids.size());
@@ -375,7 +374,7 @@ at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positi
       return at::tensor(v, iopt).view({G, 1});
     };
     const auto res_l = level_col(res), offset_l = level_col(offset), size_l = level_col(size);
-    const auto dense_l = level_col(std::vector<int64_t>(dense.begin(), dense.end())).ne(0);
+    const auto dense_l = level_col(dense).ne(0);
     const auto res_m2 = (res_l - 2).to(pos.scalar_type()).unsqueeze(2);  // [G, 1, 1]
     // u [G, n, dim]: each level's coordinates.
     auto u = pos.t().index_select(0, at::tensor(axes, iopt)).view({G, dim, n}).permute({0, 2, 1});
