@@ -151,6 +151,18 @@ TEST(Codec, RefusesNonCanonicalOrder) {
   EXPECT_NE(enc.status().message().find("canonical"), std::string::npos);
 }
 
+// A model trained on a GPU must reach the coder on the CPU: refused with a message, not read
+// through a device pointer. (The meta device stands in for a GPU on a CPU-only libtorch.)
+TEST(Codec, RefusesSymbolsOffTheCpu) {
+  auto f = make_fixture(50, 5);
+  if (!f.ok()) GTEST_SKIP() << f.status().message();
+  f->model.feature_sym = f->model.feature_sym.to(torch::kMeta);
+  auto enc = encode_model(f->model, f->config, f->components);
+  ASSERT_FALSE(enc.ok());
+  EXPECT_NE(enc.status().message().find("on meta, not the CPU"), std::string::npos)
+      << enc.status().message();
+}
+
 // Truncations and flipped bits anywhere are refused with a message, never a crash.
 TEST(Codec, CorruptAndTruncatedFilesAreRefused) {
   auto f = make_fixture(300, 11);

@@ -601,6 +601,21 @@ TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
 namespace crpgs {
 namespace {
 
+// A model left on its training device is refused before anything reads it through a host
+// pointer (the symbols' own check is Codec.RefusesSymbolsOffTheCpu, which runs everywhere).
+TEST(RateTraining, EncodeRefusesAModelOffTheCpu) {
+  SKIP_WITHOUT_PLUGINS();
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "needs a CUDA device (AnchorModel::to)";
+  Dataset ds = test::tiny_scene();
+  auto t = rate_trainer(ds, rate_schedule(2), RateOptions());
+  t->model().to(torch::kCUDA);
+  QuantizedAttributes q;
+  auto coded = coded_model_from(t->model(), &q);
+  ASSERT_FALSE(coded.ok());
+  EXPECT_NE(coded.status().message().find("the model is on cuda"), std::string::npos)
+      << coded.status().message();
+}
+
 // The whole HAC path: train -> bitstream -> decode in the same way a fresh decoder would (from the
 // bytes and the config inside them) -> the decoded model renders exactly like the training-side
 // quantised model.

@@ -317,6 +317,11 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
   auto bad = [](const std::string& msg) {
     return Status(StatusCode::kInvalidArgument, "encode: " + msg);
   };
+  // The coder reads the symbols through host pointers.
+  for (const torch::Tensor* t : {&m.bounds, &m.voxels, &m.offset_masks, &m.feature_sym,
+                                 &m.scaling_sym, &m.offset_sym, &m.links, &m.anchor_mask})
+    if (t->defined() && !t->device().is_cpu())
+      return bad("the coded model's tensors are on " + t->device().str() + ", not the CPU");
   if (!c.context || !c.entropy || !c.features)
     return bad("context, entropy and features are required");
   if (!c.entropy->supports_coding())
@@ -330,8 +335,8 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
   // Geometry first: it fixes the canonical order everything else must already follow.
   const auto vox = m.voxels.to(torch::kInt).contiguous();
   std::vector<coding::Voxel> points(static_cast<size_t>(N));
-  for (int64_t i = 0; i < N; ++i)
-    for (int a = 0; a < 3; ++a) points[size_t(i)][size_t(a)] = vox[i][a].item<int32_t>();
+  const int32_t* vp = vox.data_ptr<int32_t>();
+  for (size_t i = 0; i < points.size(); ++i) points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
   const auto order = coding::morton_order(points);
   for (size_t i = 0; i < order.size(); ++i)
     if (order[i] != i) return bad("anchors are not in canonical (Morton) order");
@@ -712,6 +717,10 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   if (!model.has_rate())
     return Status(StatusCode::kInvalidArgument,
                   "encode: the model has no rate path (config needs `context` and `entropy`)");
+  if (!model.device().is_cpu())
+    return Status(StatusCode::kInvalidArgument,
+                  "encode: the model is on " + model.device().str() +
+                      "; move it to the CPU first (AnchorModel::to(torch::kCPU))");
   torch::NoGradGuard no_grad;
   const auto idx = model.active_anchors().nonzero().view(-1);
   const float v = static_cast<float>(model.voxel_size());
