@@ -301,6 +301,15 @@ const char* section_category(const std::string& id) {
 }
 
 namespace {
+// [N, 3] CPU tensor of integral values -> voxels.
+std::vector<coding::Voxel> voxels_of(const torch::Tensor& t) {
+  const auto vox = t.to(torch::kInt).contiguous();
+  std::vector<coding::Voxel> points(static_cast<size_t>(vox.size(0)));
+  const int32_t* vp = vox.data_ptr<int32_t>();
+  for (size_t i = 0; i < points.size(); ++i) points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
+  return points;
+}
+
 // What HEAD's bounds must be for the decoder to accept them (checked on both sides, so that no
 // file is written that cannot be read back).
 bool bounds_decodable(const float lo_hi[6]) {
@@ -333,10 +342,7 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
     return bad("inconsistent tensor shapes in the coded model");
 
   // Geometry first: it fixes the canonical order everything else must already follow.
-  const auto vox = m.voxels.to(torch::kInt).contiguous();
-  std::vector<coding::Voxel> points(static_cast<size_t>(N));
-  const int32_t* vp = vox.data_ptr<int32_t>();
-  for (size_t i = 0; i < points.size(); ++i) points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
+  const std::vector<coding::Voxel> points = voxels_of(m.voxels);
   const auto order = coding::morton_order(points);
   for (size_t i = 0; i < order.size(); ++i)
     if (order[i] != i) return bad("anchors are not in canonical (Morton) order");
@@ -726,9 +732,7 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   const float v = static_cast<float>(model.voxel_size());
   const auto vox =
       torch::round(model.anchors().detach().index({idx}) / v).to(torch::kInt).contiguous();
-  std::vector<coding::Voxel> points(static_cast<size_t>(vox.size(0)));
-  const int32_t* vp = vox.data_ptr<int32_t>();
-  for (size_t i = 0; i < points.size(); ++i) points[i] = {vp[3 * i], vp[3 * i + 1], vp[3 * i + 2]};
+  const std::vector<coding::Voxel> points = voxels_of(vox);
   const auto order = coding::morton_order(points);
   for (size_t i = 1; i < order.size(); ++i)
     if (points[order[i]] == points[order[i - 1]])
