@@ -18,6 +18,7 @@
 #include "crpgs/image.h"
 #include "crpgs/trainer.h"
 #include "test_registry.h"
+#include "train/rate_test_util.h"
 
 namespace crpgs {
 namespace {
@@ -291,6 +292,112 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
                         "--set scene.background=[0.0,0,0]",
                     dir / "log.txt", &log),
             0)
+      << log;
+#endif
+}
+
+// CRP-GS's two parts through the whole path on a small scene: SFA's shared grid is in the
+// trained rate and in the file (FTRS), a file with links and a shared grid decodes (another
+// thread count) to the training-side quantised model, and `crpgs info` reports the COHS side
+// information and the anchor partition. link_random with unpruned links: the partition must be
+// non-trivial whatever the few iterations make of the features.
+const char* kCrpgsConfig = R"yaml(
+dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
+          synthetic_points: 1000}
+context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
+          n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
+features: {type: sfa, ratio: 0.4, n_levels: 3, resolutions: [8, 16, 32], log2_hashmap_size: 9,
+           n_levels_2d: 1, resolutions_2d: [32], log2_hashmap_size_2d: 9}
+links: {type: link_random}
+entropy: {type: gaussian}
+scene: {appearance_dim: 4}
+rate: {lambda: 0.002, recompute_bounds: false, prune_links: false}
+rasterizer: {type: cpu, threads: 1}
+train: {schedule: fast, fast_factor: 0.001, iterations: 20, link_builds: [16000, 18000],
+        eval_interval: 0, checkpoint_interval: 0, threads: 1}
+)yaml";
+
+TEST(DecodeCli, SharedGridAndLinksAreRatedCodedDecodedAndReported) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  if (!fs::exists(CRPGS_CLI_PATH))
+    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
+  const ComponentRegistry& reg = test::test_registry();
+  for (const auto& [kind, type] :
+       {std::pair{CRPGS_KIND_CONTEXT, "hash_grid"}, std::pair{CRPGS_KIND_ENTROPY, "gaussian"},
+        std::pair{CRPGS_KIND_FEATURES, "sfa"}, std::pair{CRPGS_KIND_CONTEXT, "link_random"}})
+    if (!reg.find(kind, type))
+      GTEST_SKIP() << "the " << type << " plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli_crpgs";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+
+  auto raw = Config::from_string(kCrpgsConfig, "decode_cli_crpgs.yaml");
+  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
+  auto cfg = raw->resolve(reg);
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  auto trainer = setup_training(cfg.value(), reg, SetupOptions{});
+  ASSERT_TRUE(trainer.ok()) << trainer.status().to_string();
+  Trainer& t = *trainer.value();
+  FeatureModel& sfa = *t.model().feature_model();
+  ASSERT_EQ(sfa.type_name(), "sfa");
+  EXPECT_EQ(sfa.coded_dim(), 30);  // 50 - round(0.4 * 50)
+  for (int it = 1; it <= 20; ++it) {
+    // The rate term prices both binary grids as they are when the step starts: the context's
+    // and the shared one.
+    const double context_bits = t.model().context()->parameter_bits().item<double>();
+    const double shared_bits = sfa.parameter_bits().item<double>();
+    ASSERT_TRUE(t.step().ok()) << "iteration " << it;
+    if (!t.last_rate().on) continue;
+    EXPECT_GT(shared_bits, 0) << "iteration " << it;
+    EXPECT_NEAR(t.last_rate().hash_bits, context_bits + shared_bits,
+                1e-6 * (context_bits + shared_bits))
+        << "iteration " << it;
+  }
+  ASSERT_TRUE(t.last_rate().on) << "the rate phase never started";
+
+  QuantizedAttributes q;
+  auto coded = coded_model_from(t.model(), &q);
+  ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+  ASSERT_TRUE(coded->links.defined());
+  const LinkCounts lc = count_links(coded->links);
+  ASSERT_GT(lc.leaves, 0);
+  auto enc = encode_model(coded.value(), cfg.value(), codec_components_of(t.model()));
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  uint64_t ftrs = 0;
+  for (const auto& sec : enc->sections)
+    if (sec.id == "FTRS") ftrs = sec.bytes;
+  // The file carries the shared table at about its rate estimate, plus the Linear's floats.
+  EXPECT_GE(8.0 * double(ftrs), 0.95 * sfa.parameter_bits().item<double>());
+  const std::string file = (dir / "scene.crpgs").string();
+  ASSERT_TRUE(write_file_atomic(file, enc->bytes).ok());
+
+  at::set_num_threads(2);  // a different thread count than the encoder's
+  auto dec = decode_model(enc->bytes, reg);
+  at::set_num_threads(1);
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_EQ(dec->components.features->type_name(), "sfa");
+  EXPECT_TRUE(torch::equal(dec->model.links, coded->links));
+  EXPECT_TRUE(torch::equal(dec->model.feature_sym, coded->feature_sym));
+  EXPECT_EQ(dec->components.features->save_state(), sfa.save_state());
+  auto decoded = model_from_decoded(dec.value(), t.model().options());
+  ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
+  for (const View& v : t.dataset().test) {
+    const auto img = test::render_quantised_and_decoded(t.model(), q, *decoded.value(), v.camera);
+    EXPECT_GT(img.gaussians, 0);
+    EXPECT_TRUE(torch::equal(img.quantised, img.decoded))
+        << "max diff " << (img.quantised - img.decoded).abs().max().item<float>();
+  }
+
+  std::string log;
+  ASSERT_EQ(run_cli("info '" + file + "'", dir / "log.txt", &log), 0) << log;
+  EXPECT_NE(log.find("FTRS"), std::string::npos) << log;
+  EXPECT_NE(log.find("COHS side information (compact coding): link vector"), std::string::npos)
+      << log;
+  EXPECT_NE(log.find("anchors: " + std::to_string(lc.roots) + " roots, " +
+                     std::to_string(lc.leaves) + " leaves, " + std::to_string(lc.free) + " free"),
+            std::string::npos)
       << log;
 #endif
 }

@@ -30,6 +30,7 @@ class PairLinks final : public ContextModel {
   std::string type_name() const override { return "pair_test"; }
   YAML::Node hyperparams() const override { return YAML::Node(); }
   torch::Tensor build_links(const LinkInputs& in) override {
+    ++builds;
     auto links = torch::full({in.features.size(0)}, -1, torch::kLong);
     auto act = in.active.nonzero().view(-1);
     for (int64_t j = 0; j + 1 < act.size(0); j += 2)
@@ -37,6 +38,8 @@ class PairLinks final : public ContextModel {
     if (chain_ && act.size(0) >= 3) links[act[0].item<int64_t>()] = act[2].item<int64_t>();
     return links;
   }
+
+  int builds = 0;  ///< how often the trainer asked for links
 
  private:
   bool chain_;
@@ -81,10 +84,13 @@ std::unique_ptr<Trainer> links_trainer(const Dataset& ds, std::shared_ptr<Contex
 TEST(LinksTraining, BuiltOnScheduleAndDecodedExactly) {
   SKIP_WITHOUT_PLUGINS();
   Dataset ds = test::tiny_scene();
-  auto t = links_trainer(ds, std::make_shared<PairLinks>());
+  auto pairs = std::make_shared<PairLinks>();
+  auto t = links_trainer(ds, pairs);
   ASSERT_TRUE(t->model().has_links());
   for (int it = 1; it <= 30; ++it) {
     ASSERT_TRUE(t->step().ok()) << "iteration " << it;
+    // Built at 24 and rebuilt from scratch at 27 (link_builds), and at no other iteration.
+    EXPECT_EQ(pairs->builds, it < 24 ? 0 : it < 27 ? 1 : 2) << "iteration " << it;
     if (it < 24) {
       EXPECT_FALSE(t->model().links().defined()) << "iteration " << it;
       EXPECT_EQ(t->last_rate().leaves, 0);
