@@ -402,5 +402,59 @@ TEST(DecodeCli, SharedGridAndLinksAreRatedCodedDecodedAndReported) {
 #endif
 }
 
+// `crpgs demo` is CRP-GS as configs/crpgs.yaml has it, on the embedded scene: the method's
+// sections of the run's resolved config equal crpgs.yaml's (all but rate.lambda), and it ends with
+// a bitstream decoded and evaluated. Shortened here (a small scene, 40 iterations).
+TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  if (!fs::exists(CRPGS_CLI_PATH))
+    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
+  const ComponentRegistry& reg = test::test_registry();
+  for (const auto& [kind, type] :
+       {std::pair{CRPGS_KIND_CONTEXT, "hash_grid"}, std::pair{CRPGS_KIND_ENTROPY, "gaussian"},
+        std::pair{CRPGS_KIND_FEATURES, "sfa"}, std::pair{CRPGS_KIND_CONTEXT, "link_cohs"}})
+    if (!reg.find(kind, type))
+      GTEST_SKIP() << "the " << type << " plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "demo_cli";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::string log;
+  ASSERT_EQ(run_cli("demo -o '" + (dir / "run").string() +
+                        "' --set dataset.synthetic_width=48 --set dataset.synthetic_height=32"
+                        " --set dataset.synthetic_views=12 --set dataset.synthetic_points=1000"
+                        " --set train.fast_factor=0.001 --set train.iterations=40"
+                        " --set train.eval_interval=0 --set train.threads=1"
+                        " --set rasterizer.threads=1",
+                    dir / "log.txt", &log),
+            0)
+      << log;
+  EXPECT_NE(log.find("decoded from the file"), std::string::npos) << log;
+  EXPECT_TRUE(fs::exists(dir / "run" / "metrics.json")) << log;
+
+  auto demo = Config::load_file((dir / "run" / "config.yaml").string());
+  ASSERT_TRUE(demo.ok()) << demo.status().to_string();
+  auto shipped = Config::load_file(std::string(CRPGS_SOURCE_DIR) + "/configs/crpgs.yaml");
+  ASSERT_TRUE(shipped.ok()) << shipped.status().to_string();
+  auto method = shipped->resolve(reg);
+  ASSERT_TRUE(method.ok()) << method.status().to_string();
+  const auto dumped = [](const Config& c, const std::string& section, const char* drop) {
+    YAML::Node n = YAML::Clone(c.section(section));
+    if (drop) n.remove(drop);
+    return YAML::Dump(n);
+  };
+  ASSERT_NE(dumped(method.value(), "features", nullptr).find("type: sfa"), std::string::npos);
+  ASSERT_NE(dumped(method.value(), "links", nullptr).find("type: link_cohs"), std::string::npos);
+  for (const char* section : {"features", "context", "entropy", "links"})
+    EXPECT_EQ(dumped(demo.value(), section, nullptr), dumped(method.value(), section, nullptr))
+        << section;
+  EXPECT_EQ(dumped(demo.value(), "rate", "lambda"), dumped(method.value(), "rate", "lambda"));
+  for (const char* key : {"full_iterations", "link_builds"})
+    EXPECT_EQ(YAML::Dump(demo->section("train")[key]), YAML::Dump(method->section("train")[key]))
+        << key;
+#endif
+}
+
 }  // namespace
 }  // namespace crpgs
