@@ -3,7 +3,8 @@
 /// here; two processes with 1 and 2 threads decode it to identical symbols (equal to the
 /// encoder's) and identical dequantised tensors, as does a third with other BLAS kernels; renders
 /// of the bitstream, of the decode directory and of the training run's quantised model are
-/// pixel-identical.
+/// pixel-identical. CRP-GS's parts (SFA's shared grid, links) through rate, file, decode and
+/// `crpgs info`; `crpgs demo` runs configs/crpgs.yaml's method.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -317,6 +318,24 @@ train: {schedule: fast, fast_factor: 0.001, iterations: 20, link_builds: [16000,
         eval_interval: 0, checkpoint_interval: 0, threads: 1}
 )yaml";
 
+/// A feature model that counts its forward passes and otherwise is the one it wraps.
+class CountingFeatures final : public FeatureModel {
+ public:
+  explicit CountingFeatures(std::shared_ptr<FeatureModel> inner) : inner_(std::move(inner)) {}
+  std::string type_name() const override { return inner_->type_name(); }
+  YAML::Node hyperparams() const override { return inner_->hyperparams(); }
+  int64_t coded_dim() const override { return inner_->coded_dim(); }
+  int64_t feature_dim() const override { return inner_->feature_dim(); }
+  torch::Tensor forward(const torch::Tensor& coded, const torch::Tensor& positions01) override {
+    ++forwards;
+    return inner_->forward(coded, positions01);
+  }
+  int forwards = 0;
+
+ private:
+  std::shared_ptr<FeatureModel> inner_;
+};
+
 TEST(DecodeCli, SharedGridAndLinksAreRatedCodedDecodedAndReported) {
 #ifndef CRPGS_CLI_PATH
   GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
@@ -381,14 +400,20 @@ TEST(DecodeCli, SharedGridAndLinksAreRatedCodedDecodedAndReported) {
   EXPECT_TRUE(torch::equal(dec->model.links, coded->links));
   EXPECT_TRUE(torch::equal(dec->model.feature_sym, coded->feature_sym));
   EXPECT_EQ(dec->components.features->save_state(), sfa.save_state());
-  auto decoded = model_from_decoded(dec.value(), t.model().options());
+  // The decoded model computes f_s once per anchor, not once per rendered view.
+  DecodeResult counted = dec.value();
+  auto counter = std::make_shared<CountingFeatures>(counted.components.features);
+  counted.components.features = counter;
+  auto decoded = model_from_decoded(counted, t.model().options());
   ASSERT_TRUE(decoded.ok()) << decoded.status().to_string();
+  EXPECT_EQ(counter->forwards, 1);
   for (const View& v : t.dataset().test) {
     const auto img = test::render_quantised_and_decoded(t.model(), q, *decoded.value(), v.camera);
     EXPECT_GT(img.gaussians, 0);
     EXPECT_TRUE(torch::equal(img.quantised, img.decoded))
         << "max diff " << (img.quantised - img.decoded).abs().max().item<float>();
   }
+  EXPECT_EQ(counter->forwards, 1) << "f_s recomputed while rendering";
 
   std::string log;
   ASSERT_EQ(run_cli("info '" + file + "'", dir / "log.txt", &log), 0) << log;
