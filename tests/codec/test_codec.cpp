@@ -117,6 +117,17 @@ TEST(Codec, RoundTripIsBitExactWithAnyThreadCount) {
   EXPECT_EQ(enc->estimated_vs_coded_bits.size(), 3u);
 }
 
+// method.md §6.4: roots, then free anchors, then leaves, each group in canonical index order.
+TEST(Codec, CodingOrderIsRootsThenFreeThenLeaves) {
+  // 7 anchors: leaves 1 -> root 4 and 5 -> root 0; anchors 2, 3, 6 are free.
+  const auto links = torch::tensor({-1, 4, -1, -1, -1, 0, -1}, torch::kInt);
+  EXPECT_TRUE(
+      torch::equal(coding_order(links, 7), torch::tensor({0, 4, 2, 3, 6, 1, 5}, torch::kLong)));
+  EXPECT_TRUE(torch::equal(coding_order(torch::full({4}, -1, torch::kInt), 4),
+                           torch::arange(4, torch::kLong)));
+  EXPECT_TRUE(torch::equal(coding_order(torch::Tensor(), 3), torch::arange(3, torch::kLong)));
+}
+
 TEST(Codec, SingleAnchorAndAllMasked) {
   auto f = make_fixture(1, 3);
   if (!f.ok()) GTEST_SKIP() << f.status().message();
