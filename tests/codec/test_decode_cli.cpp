@@ -336,18 +336,27 @@ class CountingFeatures final : public FeatureModel {
   std::shared_ptr<FeatureModel> inner_;
 };
 
+#ifdef CRPGS_CLI_PATH
+/// "" when the CLI and CRP-GS's plugins (with the link strategy `links`) are built, else why not.
+std::string crpgs_parts_missing(const ComponentRegistry& reg, const char* links) {
+  if (!fs::exists(CRPGS_CLI_PATH))
+    return std::string("the crpgs CLI is not built yet: ") + CRPGS_CLI_PATH;
+  for (const auto& [kind, type] :
+       {std::pair{CRPGS_KIND_CONTEXT, "hash_grid"}, std::pair{CRPGS_KIND_ENTROPY, "gaussian"},
+        std::pair{CRPGS_KIND_FEATURES, "sfa"}, std::pair{CRPGS_KIND_CONTEXT, links}})
+    if (!reg.find(kind, type))
+      return std::string("the ") + type + " plugin is not built in " + CRPGS_PLUGIN_BUILD_DIR;
+  return "";
+}
+#endif
+
 TEST(DecodeCli, SharedGridAndLinksAreRatedCodedDecodedAndReported) {
 #ifndef CRPGS_CLI_PATH
   GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
 #else
-  if (!fs::exists(CRPGS_CLI_PATH))
-    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
   const ComponentRegistry& reg = test::test_registry();
-  for (const auto& [kind, type] :
-       {std::pair{CRPGS_KIND_CONTEXT, "hash_grid"}, std::pair{CRPGS_KIND_ENTROPY, "gaussian"},
-        std::pair{CRPGS_KIND_FEATURES, "sfa"}, std::pair{CRPGS_KIND_CONTEXT, "link_random"}})
-    if (!reg.find(kind, type))
-      GTEST_SKIP() << "the " << type << " plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  if (const std::string why = crpgs_parts_missing(reg, "link_random"); !why.empty())
+    GTEST_SKIP() << why;
   const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli_crpgs";
   fs::remove_all(dir);
   fs::create_directories(dir);
@@ -434,14 +443,9 @@ TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
 #ifndef CRPGS_CLI_PATH
   GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
 #else
-  if (!fs::exists(CRPGS_CLI_PATH))
-    GTEST_SKIP() << "the crpgs CLI is not built yet: " << CRPGS_CLI_PATH;
   const ComponentRegistry& reg = test::test_registry();
-  for (const auto& [kind, type] :
-       {std::pair{CRPGS_KIND_CONTEXT, "hash_grid"}, std::pair{CRPGS_KIND_ENTROPY, "gaussian"},
-        std::pair{CRPGS_KIND_FEATURES, "sfa"}, std::pair{CRPGS_KIND_CONTEXT, "link_cohs"}})
-    if (!reg.find(kind, type))
-      GTEST_SKIP() << "the " << type << " plugin is not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  if (const std::string why = crpgs_parts_missing(reg, "link_cohs"); !why.empty())
+    GTEST_SKIP() << why;
   const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "demo_cli";
   fs::remove_all(dir);
   fs::create_directories(dir);
