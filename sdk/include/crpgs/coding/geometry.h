@@ -45,8 +45,8 @@ StatusOr<std::vector<Voxel>> decode_positions(ByteSpan bytes);
 /// Lossless without a point-cloud codec (the ablation "no anchor-position coding"): the voxels,
 /// already in canonical Morton order, minus the per-axis minimum, stored raw with one fixed
 /// width w for every coordinate: the narrowest that holds the extent (at most 16 bits, HAC's
-/// raw width, for a scene under 65536 voxels across). Layout: u8 format (1) | varint n | i32 min x, y, z | u8 w | packed bits.
-/// Refuses duplicates or points not in Morton order (kInvalidArgument).
+/// raw width, for a scene under 65536 voxels across). Refuses duplicates or points not in Morton
+/// order (kInvalidArgument). Layout: u8 format (1) | varint n | i32 min[3] | u8 w | packed bits.
 StatusOr<Bytes> encode_voxels_raw(const std::vector<Voxel>& points);
 /// kCorruptBitstream on a bad header or width, a wrong byte count, or points that are not
 /// strictly increasing in Morton order.
