@@ -206,7 +206,8 @@ const char* kDemoConfig = R"yaml(
 # hash-grid context, Gaussian entropy model, COHS links) on the fast schedule at 3/80 of the
 # paper's 40k-iteration phase boundaries. Ends with the bitstream, decoded.
 dataset: {format: synthetic}
-features: {type: sfa, ratio: 0.4}
+features: {type: sfa, ratio: 0.4, n_levels: 5, resolutions: [18, 41, 96, 222, 514],
+           n_levels_2d: 0, resolutions_2d: []}
 context: {type: hash_grid}
 entropy: {type: gaussian}
 links: {type: link_cohs}

@@ -592,7 +592,7 @@ TEST(RateTraining, HacConfigAndSweepsUseTheRateSection) {
     EXPECT_EQ(spec->rate_key, "rate.lambda") << sweep;
     ++sweeps;
   }
-  EXPECT_GE(sweeps, 5);  // fern_rd, fern_rd_fast, lego_rd, ablation, ablation_fast
+  EXPECT_GE(sweeps, 5);  // fern_rd, fern_rd_fast, benchmark, ablation, ablation_fast
 }
 
 }  // namespace

@@ -150,12 +150,19 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
         }
     }
     if (const YAML::Node ds = root["datasets"]) {
-      if (!ds.IsSequence()) return bad(name, "'datasets' is a list of {name, set}");
+      if (!ds.IsSequence()) return bad(name, "'datasets' is a list of {name, scene, set}");
       names.clear();
       for (const auto& d : ds) {
         if (!d.IsMap() || !d["name"]) return bad(name, "a dataset entry needs 'name'");
         SweepDataset sd;
         sd.name = d["name"].as<std::string>();
+        if (d["scene"]) sd.scene = d["scene"].as<std::string>();
+        for (const auto& kv : d) {
+          const std::string k = kv.first.as<std::string>();
+          if (k != "name" && k != "scene" && k != "set")
+            return bad(name, "dataset '" + sd.name + "': unknown key '" + k +
+                                 "' (expected name, scene, set)");
+        }
         CRPGS_RETURN_IF_ERROR(parse_set(d["set"], name, sd.set));
         if (!names.insert(sd.name).second) return bad(name, "two datasets named " + sd.name);
         s.datasets.push_back(std::move(sd));
@@ -209,7 +216,7 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
   for (const auto& [k, v] : spec.grid) label.push_back(count[last_part(k)] > 1 ? k : last_part(k));
 
   std::vector<SweepDataset> datasets = spec.datasets;
-  if (datasets.empty()) datasets.push_back({"default", {}});
+  if (datasets.empty()) datasets.push_back({"default", {}, {}});
   size_t combos = 1;
   for (const auto& [k, v] : spec.grid) combos *= v.size();
 
@@ -221,6 +228,7 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
         r.index = static_cast<int>(runs.size());
         r.dataset = ds.name;
         r.config_path = cfg.path;
+        r.scene = ds.scene;
         r.method = cfg.name;
         r.overrides = cfg.set;
         r.overrides.insert(r.overrides.end(), ds.set.begin(), ds.set.end());
@@ -248,10 +256,45 @@ std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& run
   return runs;
 }
 
+namespace {
+
+/// Lays a scene file's keys over `cfg`, leaf by leaf (what `--set` would do for each). A scene
+/// holds what a benchmark fixes per scene; a component block there would mix two components'
+/// parameters, so only the core sections are accepted.
+Status lay_scene_over(Config& cfg, const std::string& scene_path) {
+  CRPGS_ASSIGN_OR_RETURN(Config scene, Config::load_file(scene_path));
+  static const std::set<std::string> kSections = {"dataset", "scene", "model", "train", "rate"};
+  std::vector<std::pair<std::string, YAML::Node>> todo;
+  for (const auto& kv : scene.root()) {
+    const std::string k = kv.first.as<std::string>();
+    if (!kSections.count(k))
+      return bad(scene_path,
+                 "a scene file holds only the dataset, scene, model, train and rate "
+                 "sections (found '" +
+                     k + "')");
+    todo.emplace_back(k, kv.second);
+  }
+  while (!todo.empty()) {
+    auto [key, node] = todo.back();
+    todo.pop_back();
+    if (node.IsMap()) {
+      for (const auto& kv : node)
+        todo.emplace_back(key + "." + kv.first.as<std::string>(), kv.second);
+    } else {
+      CRPGS_RETURN_IF_ERROR(cfg.set(key, YAML::Clone(node)));
+    }
+  }
+  return OkStatus();
+}
+
+}  // namespace
+
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
-  // As `crpgs train`: load_file makes a config file's dataset path absolute against that file;
-  // one set by the sweep file (like --set) is relative to the working directory.
+  // As `crpgs train`: load_file makes a config file's dataset path absolute against that file
+  // (a scene file's too); one set by the sweep file (like --set) is relative to the working
+  // directory.
   CRPGS_ASSIGN_OR_RETURN(Config cfg, Config::load_file(run.config_path));
+  if (!run.scene.empty()) CRPGS_RETURN_IF_ERROR(lay_scene_over(cfg, run.scene));
   for (const auto& [k, v] : run.overrides) CRPGS_RETURN_IF_ERROR(cfg.apply_override(k + "=" + v));
   std::error_code ec;
   CRPGS_RETURN_IF_ERROR(make_dataset_path_absolute(cfg, fs::current_path(ec).string()));
@@ -276,6 +319,7 @@ Status prepare_run(const SweepRun& run, const ComponentRegistry* registry) {
   w.key("dataset").value(run.dataset);
   w.key("rate").value(run.rate);
   w.key("config").value(run.config_path);
+  if (!run.scene.empty()) w.key("scene").value(run.scene);
   w.key("overrides").begin_object();
   for (const auto& [k, v] : run.overrides) w.key(k).value(v);
   w.end_object();

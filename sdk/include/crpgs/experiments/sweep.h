@@ -47,6 +47,8 @@ struct SweepConfig {
 
 struct SweepDataset {
   std::string name;
+  std::string
+      scene;  ///< a scene file (configs/scenes/*/scene.yaml) laid over each config; may be empty
   Overrides set;
 };
 
@@ -84,6 +86,7 @@ struct SweepRun {
   std::string method;  ///< config name plus the non-rate overrides, e.g. "crpgs sfa=0.5"
   std::string dataset;
   std::string config_path;
+  std::string scene;    ///< the dataset's scene file, laid over the config before the overrides
   Overrides overrides;  ///< config set, then dataset set, then grid values (applied in order)
   double rate = NAN;    ///< the rate_key value, when numeric
 };
@@ -91,7 +94,8 @@ struct SweepRun {
 /// Datasets x configs x grid, in that nesting order. `runs_dir` empty = spec.output.
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir = "");
 
-/// The run's config: base config + overrides, resolved against `registry` when non-null.
+/// The run's config: base config, then the scene file's keys, then the overrides, resolved
+/// against `registry` when non-null.
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry);
 
 /// Writes RUN/config.yaml (base config + overrides, resolved against `registry` when non-null)
