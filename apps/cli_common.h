@@ -113,6 +113,8 @@ struct BitstreamReport {
   double decoded_psnr = 0;                           ///< the model decoded from the file on disk
   std::vector<std::array<double, 3>> decoded_views;  ///< psnr, ssim, render seconds per view
   std::vector<std::string> view_names;
+  int64_t anchors = 0;    ///< coded anchors
+  int64_t gaussians = 0;  ///< their neural Gaussians with the offset mask on
   /// With links: leaves at the end of training and leaves coded (links whose leaf or root is
   /// masked are dropped at encode time), and what the coded links buy.
   int64_t links_built = -1, links_coded = -1;

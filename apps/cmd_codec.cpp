@@ -73,6 +73,8 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
                          model_from_decoded(dec, t.model().options()));
   rep.decode_seconds = secs(t0);
   rep.file_bytes = bytes.size();
+  rep.anchors = dec.model.voxels.size(0);
+  rep.gaussians = dec.model.offset_masks.sum().item<int64_t>();
   if (dec.model.links.defined()) {
     CRPGS_ASSIGN_OR_RETURN(
         rep.link_rate,

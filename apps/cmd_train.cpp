@@ -161,6 +161,8 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
     if (!rep.ok()) return report_error(rep.status());
     print_bitstream_report(rep.value());
     m.size_bytes = rep->file_bytes;
+    m.anchors = rep->anchors;
+    m.gaussians = rep->gaussians;
     for (const auto& s : rep->sections) {
       const std::string c = section_category(s.id);
       for (int k = 0; k < experiments::kNumBitstreamCategories; ++k)

@@ -46,6 +46,25 @@ TEST(BdRate, LinearCurvesMatchClosedForm) {
   EXPECT_NEAR(*bd_rate(a, up), (std::exp(-0.5 / b) - 1) * 100, 1e-9);
 }
 
+// A figure names what it integrates: the non-dominated points of each curve (a dominated point
+// does not count) and the common interval, in dB for BD-rate and in bytes for BD-PSNR.
+TEST(BdRate, FiguresSayTheirPointsAndInterval) {
+  const std::vector<RdPoint> anchor = {{1e6, 28}, {2e6, 29}, {3e6, 30}, {4e6, 29.5}};
+  const std::vector<RdPoint> test = {{1.5e6, 28.5}, {2.5e6, 30.5}};
+  const auto rate = bd_rate_figure(anchor, test);
+  ASSERT_TRUE(rate.has_value());
+  EXPECT_EQ(rate->anchor_points, 3);
+  EXPECT_EQ(rate->test_points, 2);
+  EXPECT_DOUBLE_EQ(rate->lo, 28.5);
+  EXPECT_DOUBLE_EQ(rate->hi, 30.0);
+  EXPECT_DOUBLE_EQ(rate->value, *bd_rate(anchor, test));
+  const auto psnr = bd_psnr_figure(anchor, test);
+  ASSERT_TRUE(psnr.has_value());
+  EXPECT_NEAR(psnr->lo, 1.5e6, 1e-3);
+  EXPECT_NEAR(psnr->hi, 2.5e6, 1e-3);
+  EXPECT_DOUBLE_EQ(psnr->value, *bd_psnr(anchor, test));
+}
+
 TEST(BdRate, NonOverlappingCurvesGiveNoResult) {
   const std::vector<RdPoint> low = {{1e6, 28}, {2e6, 29}, {3e6, 30}};
   const std::vector<RdPoint> high = {{1e7, 33}, {2e7, 34}, {3e7, 35}};

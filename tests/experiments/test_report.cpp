@@ -92,17 +92,22 @@ TEST(Report, TablesHaveRdPointsAndBdRows) {
             std::string::npos)
       << md;
   // "far" never overlaps: no result either way.
-  EXPECT_NE(md.find("| hac | far | — | — |"), std::string::npos) << md;
-  EXPECT_NE(md.find("| crpgs | far | — | — |"), std::string::npos) << md;
-  // One RD row per run, with λ and size in MB.
-  EXPECT_NE(md.find("| hac | 0.004 | 5.0000 |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| hac | far | — | — | — | — |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| crpgs | far | — | — | — | — |"), std::string::npos) << md;
+  // The BD row says what it integrates: the common PSNR interval (BD-rate) and size interval
+  // (BD-PSNR, in MiB: hac spans 5e6..20.48e6 B, crpgs 0.7x that).
+  EXPECT_NE(md.find("| hac | crpgs | -30.00 | 24.000–26.250 | "), std::string::npos) << md;
+  EXPECT_NE(md.find(" | 4.7684–13.6719 | 4 points,"), std::string::npos) << md;
+  // One RD row per run, with λ and size in bytes and MiB (2^20 bytes, the field's "MB").
+  EXPECT_NE(md.find("| hac | 0.004 | 5000000 | 4.7684 |"), std::string::npos) << md;
   EXPECT_EQ(std::count(md.begin(), md.end(), '\n') > 20, true);
-  // hac from 5 MB / 24.00 dB to 8 MB / 24.65 dB, train 600 -> 700 s: per +0.1 dB 461.5 KB, 15.4 s.
-  EXPECT_NE(md.find("| hac | 0.004 | 0.002 | +0.650 | +461.5 | +15.4 |"), std::string::npos) << md;
+  // hac from 5e6 B / 24.00 dB to 8e6 B / 24.65 dB, train 600 -> 700 s: per +0.1 dB 450.7 KiB,
+  // 15.4 s.
+  EXPECT_NE(md.find("| hac | 0.004 | 0.002 | +0.650 | +450.7 | +15.4 |"), std::string::npos) << md;
   // Ablation view at equal λ: crpgs is 30% smaller than hac at the same PSNR; "far" is 100x.
-  EXPECT_NE(md.find("| crpgs | 0.004 | 3.5000 | -30.00 | 24.000 | +0.000 |"), std::string::npos)
+  EXPECT_NE(md.find("| crpgs | 0.004 | 3.3379 | -30.00 | 24.000 | +0.000 |"), std::string::npos)
       << md;
-  EXPECT_NE(md.find("| far | 0.002 | 800.0000 | +9900.00 | 40.650 | +16.000 |"), std::string::npos)
+  EXPECT_NE(md.find("| far | 0.002 | 762.9395 | +9900.00 | 40.650 | +16.000 |"), std::string::npos)
       << md;
   EXPECT_EQ(md.find("![rd_"), std::string::npos);  // no plots asked for
   const std::string html = read_text(out->html);
@@ -117,9 +122,73 @@ TEST(Report, ABdRowWithoutResultShowsTheShortFront) {
   auto out = write_report({runs}, opt);
   ASSERT_TRUE(out.ok()) << out.status().message();
   const std::string md = read_text(out->markdown);
-  EXPECT_NE(md.find("| hac | crpgs | — | — | 1 point, 24.000 dB | 4 points, 24.000–26.250 dB |"),
+  EXPECT_NE(md.find("| hac | crpgs | — | — | — | — | 1 point, 24.000 dB | 4 points, 24.000–26.250 "
+                    "dB |"),
             std::string::npos)
       << md;
+}
+
+// Several scenes: the summary table (the paper's layout) with each scene's BD figures against
+// its first method and their mean, and one CSV per scene in the compression survey's layout.
+TEST(Report, SummaryOverScenesAndSurveyCsvPerScene) {
+  const std::string runs = make_fixture("summary");
+  // flower: the same runs, crpgs at 0.8x hac's size instead of 0.7x, and Gaussian counts.
+  for (const std::string method : {"hac", "crpgs"})
+    for (int i = 0; i < 4; ++i) {
+      const std::string from = runs + "/fern/" + method + "/lambda-" + std::to_string(i);
+      const std::string to = runs + "/flower/" + method + "/lambda-" + std::to_string(i);
+      auto m = read_run_metrics(from + "/metrics.json");
+      ASSERT_TRUE(m.ok());
+      m->dataset = "flower";
+      if (method == "crpgs") m->size_bytes = uint64_t(double(m->size_bytes) / 0.7 * 0.8);
+      m->anchors = 1000 + i;
+      m->gaussians = 9000 + i;
+      fs::create_directories(to);
+      ASSERT_TRUE(write_run_metrics(to + "/metrics.json", *m).ok());
+      std::string info = read_text(from + "/run.json");
+      info = std::regex_replace(info, std::regex("fern"), "flower");
+      write_text(to + "/run.json", info);
+    }
+  ReportOptions opt;
+  opt.plots = false;
+  auto out = write_report({runs}, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  const std::string md = read_text(out->markdown);
+  const size_t summary = md.find("## Summary over scenes");
+  ASSERT_NE(summary, std::string::npos) << md;
+  EXPECT_LT(summary, md.find("## fern"));  // first, before the scenes' sections
+  // fern's crpgs is hac's curve at 0.7x the size, flower's at 0.8x: -30 % and -20 %; their
+  // low-rate points are 3.5e6 and 4e6 bytes at 24.000 dB, the high-rate ones 14.336e6 and
+  // 16.384e6 bytes at 26.250 dB.
+  EXPECT_NE(
+      md.find("| fern | hac | 4.7684 | 24.000 | 0.8100 | 19.5312 | 26.250 | 0.8100 | anchor |"),
+      std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| fern | crpgs | 3.3379 | 24.000 | 0.8100 | 13.6719 | 26.250 | 0.8100 | "
+                    "-30.00 | "),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| flower | crpgs | 3.8147 | 24.000 | 0.8100 | 15.6250 | 26.250 | 0.8100 | "
+                    "-20.00 | "),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| 4/4 points, 24.000–26.250 dB |"), std::string::npos) << md;
+  // "far" is on fern only and overlaps nothing: no figure, and its mean covers no scene.
+  EXPECT_NE(md.find("| mean | crpgs |  |  |  |  |  |  | -25.00 | "), std::string::npos) << md;
+  EXPECT_NE(md.find("| mean | far |  |  |  |  |  |  | — | — | 0 scenes |"), std::string::npos)
+      << md;
+
+  ASSERT_EQ(out->csvs.size(), 2u);
+  EXPECT_EQ(out->csvs[0], runs + "/report/scene_fern.csv");
+  const std::string fern = read_text(out->csvs[0]);
+  const std::string flower = read_text(out->csvs[1]);
+  EXPECT_EQ(fern.substr(0, fern.find('\n')), "Submethod,PSNR,SSIM,LPIPS,Size [Bytes],#Gaussians");
+  EXPECT_EQ(std::count(fern.begin(), fern.end(), '\n'), 13);  // header + 12 runs
+  // LPIPS not computed: empty; #Gaussians empty where the run did not record it.
+  EXPECT_NE(fern.find("\ncrpgs lambda=0.004,24.000,0.8100,,3500000,\n"), std::string::npos) << fern;
+  EXPECT_NE(flower.find("\ncrpgs lambda=0.004,24.000,0.8100,,4000000,9000\n"), std::string::npos)
+      << flower;
+  EXPECT_NE(md.find("[scene_flower.csv](scene_flower.csv)"), std::string::npos);
 }
 
 bool is_png(const std::string& bytes) {
@@ -157,7 +226,8 @@ TEST(Report, RendersAllPlotsAndEmbedsThemInTheHtml) {
   // No temporary files left next to the outputs.
   for (const auto& e : fs::directory_iterator(opt.out_dir))
     EXPECT_TRUE(e.path().extension() == ".png" || e.path().extension() == ".md" ||
-                e.path().extension() == ".html" || e.path().filename() == "runs")
+                e.path().extension() == ".html" || e.path().extension() == ".csv" ||
+                e.path().filename() == "runs")
         << e.path();
 }
 

@@ -17,6 +17,8 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   m.size_bytes = 1234567;
   m.breakdown[static_cast<int>(BitstreamCategory::kGeometry)] = 1000;
   m.breakdown[static_cast<int>(BitstreamCategory::kMlps)] = 234567;
+  m.anchors = 68123;
+  m.gaussians = 512345;
   m.views = {{"view_000", 25.5, 0.81, 0.012}, {"view_008", 26.5, 0.83, 0.014}};
   m.train_seconds = 1800.25;
   m.encode_seconds = 3.5;
@@ -36,6 +38,8 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   EXPECT_DOUBLE_EQ(r.lambda, 1e-3);
   EXPECT_EQ(r.size_bytes, 1234567u);
   EXPECT_EQ(r.breakdown, m.breakdown);
+  EXPECT_EQ(r.anchors, 68123);
+  EXPECT_EQ(r.gaussians, 512345);
   ASSERT_EQ(r.views.size(), 2u);
   EXPECT_EQ(r.views[1].name, "view_008");
   EXPECT_DOUBLE_EQ(r.psnr_mean, 26.0);  // filled from the views
@@ -48,6 +52,20 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   EXPECT_DOUBLE_EQ(r.trace[0].seconds, 10.5);
   EXPECT_EQ(r.trace_views, m.trace_views);
   EXPECT_EQ(r.peak_memory_bytes, m.peak_memory_bytes);
+}
+
+TEST(RunMetrics, CountsAreUnknownInOlderFilesAndRefusedWhenNotWholeNumbers) {
+  const std::string head =
+      "{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
+      "\"views\": [{\"name\": \"a\", \"psnr\": 30}]";
+  auto old = run_metrics_from_json(head + "}");
+  ASSERT_TRUE(old.ok()) << old.status().message();
+  EXPECT_EQ(old->anchors, -1);
+  EXPECT_EQ(old->gaussians, -1);
+  auto bad = run_metrics_from_json(head + ", \"gaussians\": -3}");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("\"gaussians\" must be a whole number"), std::string::npos)
+      << bad.status().message();
 }
 
 TEST(RunMetrics, ATraceWithoutItsViewsIsOfTheFirstTestView) {

@@ -171,6 +171,57 @@ TEST(Sweep, PrepareRunWritesConfigAndRunJson) {
   EXPECT_EQ(run_state(r.dir), RunState::kPending);
 }
 
+// A dataset entry may name a scene file (configs/scenes/*/scene.yaml): its keys are laid over
+// each config before the sweep's overrides, its relative dataset path is against the scene
+// file, and it is recorded in run.json; a component block there is refused.
+TEST(Sweep, ADatasetsSceneFileIsLaidOverEachConfig) {
+  const std::string dir = fresh_dir("scene");
+  fs::create_directories(dir + "/scenes/lego");
+  write_text(dir + "/scenes/lego/scene.yaml",
+             "dataset: {path: ../../data/lego, format: nerf_synthetic, downscale: 2}\n"
+             "scene: {background: [1, 1, 1]}\nmodel: {voxel_size: 0.01}\n");
+  write_text(dir + "/a.yaml",
+             "dataset: {path: fern, format: colmap, images: images_8}\nmodel: {voxel_size: 0, "
+             "sfa: 1.0}\nentropy: {lambda: 0.5}\n");
+  const std::string yaml = "output: " + dir + "/runs\nconfigs: [" + dir +
+                           "/a.yaml]\noverrides: {entropy.lambda: [1.0e-3]}\n"
+                           "datasets:\n  - {name: lego, scene: " +
+                           dir + "/scenes/lego/scene.yaml, set: {model.voxel_size: 0.02}}\n";
+  auto spec = parse_sweep(yaml, "s.yaml");
+  ASSERT_TRUE(spec.ok()) << spec.status().message();
+  const auto runs = expand_sweep(*spec);
+  ASSERT_EQ(runs.size(), 1u);
+  EXPECT_EQ(runs[0].scene, dir + "/scenes/lego/scene.yaml");
+  auto cfg = build_run_config(runs[0], nullptr);
+  ASSERT_TRUE(cfg.ok()) << cfg.status().message();
+  const YAML::Node& root = cfg->root();
+  EXPECT_EQ(root["dataset"]["path"].as<std::string>(), (fs::path(dir) / "data/lego").string());
+  EXPECT_EQ(root["dataset"]["format"].as<std::string>(), "nerf_synthetic");
+  EXPECT_EQ(root["dataset"]["images"].as<std::string>(), "images_8");  // the scene leaves it
+  EXPECT_EQ(root["dataset"]["downscale"].as<int>(), 2);
+  EXPECT_EQ(root["scene"]["background"][2].as<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(root["model"]["voxel_size"].as<double>(), 0.02);  // the sweep's set wins
+  EXPECT_DOUBLE_EQ(root["model"]["sfa"].as<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(root["entropy"]["lambda"].as<double>(), 1e-3);
+  ASSERT_TRUE(prepare_run(runs[0], nullptr).ok());
+  EXPECT_NE(read_text(runs[0].dir + "/run.json").find("\"scene\": \"" + runs[0].scene + "\""),
+            std::string::npos);
+
+  write_text(dir + "/scenes/bad.yaml", "features: {type: sfa}\n");
+  SweepRun bad = runs[0];
+  bad.scene = dir + "/scenes/bad.yaml";
+  auto refused = build_run_config(bad, nullptr);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("found 'features'"), std::string::npos)
+      << refused.status().message();
+  bad.scene = dir + "/scenes/missing.yaml";
+  EXPECT_FALSE(build_run_config(bad, nullptr).ok());
+  auto typo = parse_sweep(yaml + "  - {name: mic, scen: x.yaml}\n", "s.yaml");
+  ASSERT_FALSE(typo.ok());
+  EXPECT_NE(typo.status().message().find("unknown key 'scen'"), std::string::npos)
+      << typo.status().message();
+}
+
 struct LocalSweep {
   std::string dir, runner, log;
   std::vector<SweepRun> runs;

@@ -90,15 +90,20 @@ double Pchip::integrate(double a, double b) const {
 
 namespace {
 
-/// Mean of (f_test - f_anchor) over the common x range, each curve a PCHIP of y over x.
-std::optional<double> mean_gap(const std::vector<double>& xa, const std::vector<double>& ya,
-                               const std::vector<double>& xt, const std::vector<double>& yt) {
+/// Mean of (f_test - f_anchor) over the common x range, each curve a PCHIP of y over x; the
+/// range and point counts go with it.
+std::optional<BdFigure> mean_gap(const std::vector<double>& xa, const std::vector<double>& ya,
+                                 const std::vector<double>& xt, const std::vector<double>& yt) {
   if (xa.size() < 2 || xt.size() < 2) return std::nullopt;
-  const double lo = std::max(xa.front(), xt.front());
-  const double hi = std::min(xa.back(), xt.back());
-  if (!(hi > lo)) return std::nullopt;
+  BdFigure f;
+  f.lo = std::max(xa.front(), xt.front());
+  f.hi = std::min(xa.back(), xt.back());
+  if (!(f.hi > f.lo)) return std::nullopt;
   const Pchip fa(xa, ya), ft(xt, yt);
-  return (ft.integrate(lo, hi) - fa.integrate(lo, hi)) / (hi - lo);
+  f.value = (ft.integrate(f.lo, f.hi) - fa.integrate(f.lo, f.hi)) / (f.hi - f.lo);
+  f.anchor_points = int(xa.size());
+  f.test_points = int(xt.size());
+  return f;
 }
 
 void split(const std::vector<RdPoint>& curve, std::vector<double>& log_size,
@@ -111,23 +116,37 @@ void split(const std::vector<RdPoint>& curve, std::vector<double>& log_size,
 
 }  // namespace
 
-std::optional<double> bd_rate(const std::vector<RdPoint>& anchor,
-                              const std::vector<RdPoint>& test) {
+std::optional<BdFigure> bd_rate_figure(const std::vector<RdPoint>& anchor,
+                                       const std::vector<RdPoint>& test) {
   std::vector<double> ra, da, rt, dt;
   split(anchor, ra, da);
   split(test, rt, dt);
   // log(size) as a function of PSNR (PSNR is strictly increasing on a Pareto front).
-  const auto gap = mean_gap(da, ra, dt, rt);
-  if (!gap) return std::nullopt;
-  return (std::exp(*gap) - 1) * 100;
+  auto f = mean_gap(da, ra, dt, rt);
+  if (f) f->value = (std::exp(f->value) - 1) * 100;
+  return f;
+}
+
+std::optional<BdFigure> bd_psnr_figure(const std::vector<RdPoint>& anchor,
+                                       const std::vector<RdPoint>& test) {
+  std::vector<double> ra, da, rt, dt;
+  split(anchor, ra, da);
+  split(test, rt, dt);
+  auto f = mean_gap(ra, da, rt, dt);
+  if (f) f->lo = std::exp(f->lo), f->hi = std::exp(f->hi);  // log size back to bytes
+  return f;
+}
+
+std::optional<double> bd_rate(const std::vector<RdPoint>& anchor,
+                              const std::vector<RdPoint>& test) {
+  const auto f = bd_rate_figure(anchor, test);
+  return f ? std::optional<double>(f->value) : std::nullopt;
 }
 
 std::optional<double> bd_psnr(const std::vector<RdPoint>& anchor,
                               const std::vector<RdPoint>& test) {
-  std::vector<double> ra, da, rt, dt;
-  split(anchor, ra, da);
-  split(test, rt, dt);
-  return mean_gap(ra, da, rt, dt);
+  const auto f = bd_psnr_figure(anchor, test);
+  return f ? std::optional<double>(f->value) : std::nullopt;
 }
 
 }  // namespace crpgs::experiments

@@ -30,11 +30,22 @@ std::string fmt(const char* f, double v) {
   return buf;
 }
 
+/// The field's "MB" (HAC's and the survey's tables) is 2^20 bytes: sizes are reported in MiB.
+constexpr double kMiB = 1048576.0;
+
 std::string rate_text(double r) {
   if (!std::isfinite(r)) return "—";
   char buf[32];
   std::snprintf(buf, sizeof buf, "%g", r);
   return buf;
+}
+
+std::string mib(double bytes) {
+  return fmt("%.4f", bytes / kMiB);
+}
+
+std::string count_text(int64_t n) {
+  return n >= 0 ? std::to_string(n) : "—";
 }
 
 std::string file_part(const std::string& s) {
@@ -217,14 +228,14 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
     else
       notes.push_back(st.message());
   };
-  // Data files: one per method: size_MB psnr enc dec render_ms (NaN: not measured; size 0, a
+  // Data files: one per method: size_MiB psnr enc dec render_ms (NaN: not measured; size 0, a
   // run without a bitstream, is NaN too, as log scales cannot show it).
   auto nan_text = [](double v) { return std::isfinite(v) ? std::to_string(v) : "NaN"; };
   std::vector<std::string> files;
   // Per time column: a run with it and a PSNR, a run with it and a size (the two panel rows).
   bool any_size = false, with_psnr[3] = {false, false, false}, with_size[3] = {false, false, false};
   for (size_t i = 0; i < g.methods.size(); ++i) {
-    std::string text = "# size_MB psnr encode_s decode_s render_ms\n";
+    std::string text = "# size_MiB psnr encode_s decode_s render_ms\n";
     for (const auto* r : g.by_method.at(g.methods[i])) {
       const auto& m = r->metrics;
       const double t[3] = {m.encode_seconds, m.decode_seconds, m.render_seconds_per_view * 1e3};
@@ -233,7 +244,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
         with_psnr[k] |= std::isfinite(t[k]) && std::isfinite(m.psnr_mean);
         with_size[k] |= std::isfinite(t[k]) && m.size_bytes > 0;
       }
-      text += nan_text(m.size_bytes > 0 ? m.size_bytes / 1e6 : NAN) + " " + nan_text(m.psnr_mean) +
+      text += nan_text(m.size_bytes > 0 ? m.size_bytes / kMiB : NAN) + " " + nan_text(m.psnr_mean) +
               " " + nan_text(t[0]) + " " + nan_text(t[1]) + " " + nan_text(t[2]) + "\n";
     }
     files.push_back(p.data(ds + "_m" + std::to_string(i) + ".dat", text));
@@ -249,7 +260,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
   // RD curves.
   if (any_size) {
     std::string b = "set title " + gp_quote("Rate-distortion: " + g.dataset) + "\n";
-    b += "set xlabel \"size (MB, log scale)\"\nset ylabel \"PSNR (dB)\"\nset logscale x\n";
+    b += "set xlabel \"size (MiB, log scale)\"\nset ylabel \"PSNR (dB)\"\nset logscale x\n";
     b += "plot " + series("1:2");
     draw("rd_" + ds + ".png", b, 900, 600);
   } else {
@@ -306,7 +317,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
             continue;
           }
           b += "set xlabel " + gp_quote(kTimeLabel[col]) + "\n";
-          b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MB)\"") + "\n";
+          b += std::string("set ylabel ") + (row == 0 ? "\"PSNR (dB)\"" : "\"size (MiB)\"") + "\n";
           b += "plot " + series(std::to_string(3 + col) + ":" + (row == 0 ? "2" : "1")) + "\n";
         }
       b += "unset multiplot";
@@ -327,7 +338,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
       if (total == 0) continue;
       any = true;
       std::string label = std::isfinite(r->rate) ? "λ=" + rate_text(r->rate)
-                                                 : fmt("%.2fMB", r->metrics.size_bytes / 1e6);
+                                                 : fmt("%.2fMiB", r->metrics.size_bytes / kMiB);
       text += gp_quote(label);
       for (auto v : r->metrics.breakdown) text += " " + std::to_string(100.0 * v / total);
       text += "\n";
@@ -344,6 +355,86 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
          " using c:xtic(1) title columnheader(c) lc rgb word(colors, c - 1)";
     draw("breakdown_" + breakdowns(g.dataset + "\n" + g.methods[i]) + ".png", b, 900, 600);
   }
+}
+
+/// The summary over scenes, as the paper's table: per scene and method the low- and high-rate
+/// points (the smallest and the largest file) and the BD figures against the scene's first
+/// method (the sweep's first config), then each method's mean BD over the scenes that have one.
+Table summary_table(const std::vector<Group>& groups) {
+  Table t = {{"scene", "method", "low rate: size (MiB)", "PSNR (dB)", "SSIM",
+              "high rate: size (MiB)", "PSNR (dB)", "SSIM", "BD-rate (%)", "BD-PSNR (dB)",
+              "BD over"}};
+  std::vector<std::string> methods;  // first-seen order over all scenes
+  std::map<std::string, std::vector<double>> rates, psnrs;
+  for (const auto& g : groups) {
+    const auto anchor = rd_points(g.by_method.at(g.methods[0]));
+    for (const auto& method : g.methods) {
+      const auto& runs = g.by_method.at(method);
+      const auto &lo = runs.front()->metrics, &hi = runs.back()->metrics;
+      std::vector<std::string> row = {g.dataset,
+                                      method,
+                                      mib(lo.size_bytes),
+                                      fmt("%.3f", lo.psnr_mean),
+                                      fmt("%.4f", lo.ssim_mean),
+                                      mib(hi.size_bytes),
+                                      fmt("%.3f", hi.psnr_mean),
+                                      fmt("%.4f", hi.ssim_mean)};
+      if (method == g.methods[0]) {
+        row.insert(row.end(), {"anchor", "", ""});
+      } else {
+        if (std::find(methods.begin(), methods.end(), method) == methods.end())
+          methods.push_back(method);
+        const auto test = rd_points(runs);
+        const auto rate = bd_rate_figure(anchor, test);
+        const auto psnr = bd_psnr_figure(anchor, test);
+        if (rate) rates[method].push_back(rate->value);
+        if (psnr) psnrs[method].push_back(psnr->value);
+        row.push_back(rate ? fmt("%+.2f", rate->value) : "—");
+        row.push_back(psnr ? fmt("%+.3f", psnr->value) : "—");
+        row.push_back(rate ? std::to_string(rate->anchor_points) + "/" +
+                                 std::to_string(rate->test_points) + " points, " +
+                                 fmt("%.3f", rate->lo) + "–" + fmt("%.3f dB", rate->hi)
+                           : front_text(anchor) + " / " + front_text(test));
+      }
+      t.push_back(row);
+    }
+  }
+  auto mean = [](const std::vector<double>& v) {
+    double sum = 0;
+    for (double x : v) sum += x;
+    return v.empty() ? NAN : sum / double(v.size());
+  };
+  for (const auto& method : methods) {
+    const auto &r = rates[method], &p = psnrs[method];
+    t.push_back({"mean", method, "", "", "", "", "", "", fmt("%+.2f", mean(r)),
+                 fmt("%+.3f", mean(p)),
+                 std::to_string(r.size()) + (r.size() == 1 ? " scene" : " scenes")});
+  }
+  return t;
+}
+
+/// A CSV field: quoted when it holds a comma, a quote or a line break.
+std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\r\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
+/// One scene's runs in the 3DGS compression survey's per-scene CSV layout. LPIPS is not computed
+/// (it needs pretrained weights), so its column is empty, as the survey leaves unknown values.
+std::string survey_csv(const Group& g) {
+  std::string csv = "Submethod,PSNR,SSIM,LPIPS,Size [Bytes],#Gaussians\n";
+  for (const auto& method : g.methods)
+    for (const auto* r : g.by_method.at(method)) {
+      const auto& m = r->metrics;
+      const std::string name =
+          method + (std::isfinite(r->rate) ? " lambda=" + rate_text(r->rate) : std::string());
+      csv += csv_field(name) + "," + fmt("%.3f", m.psnr_mean) + "," + fmt("%.4f", m.ssim_mean) +
+             ",," + std::to_string(m.size_bytes) + "," +
+             (m.gaussians >= 0 ? std::to_string(m.gaussians) : std::string()) + "\n";
+    }
+  return csv;
 }
 
 // A run id as a relative path inside a records directory: no root, no "..", not empty.
@@ -572,35 +663,62 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       "no common interval (or fewer than 2 points); the fronts are the non-dominated points each "
       "curve keeps, with their PSNR range.\n\n";
 
-  FileNames dataset_files, breakdown_files;
+  if (std::any_of(groups.begin(), groups.end(),
+                  [](const Group& g) { return g.methods.size() > 1; })) {
+    std::vector<Group> compared;
+    for (const auto& g : groups)
+      if (g.methods.size() > 1) compared.push_back(g);
+    const Table t = summary_table(compared);
+    const std::string note =
+        "Low and high rate: each method's smallest and largest file on the scene. BD figures "
+        "against the scene's first method (the sweep's first config), over the non-dominated "
+        "points of both curves (anchor/test) and their common PSNR interval; the mean row "
+        "averages the scenes that have a figure. Sizes in MiB (2^20 bytes, the field's \"MB\").";
+    md += "## Summary over scenes\n\n" + note + "\n\n" + md_table(t);
+    html_body += "<h2>Summary over scenes</h2>\n<p>" + html_escape(note) + "</p>\n" + html_table(t);
+  }
+
+  FileNames dataset_files, breakdown_files, csv_files;
   for (const auto& g : groups) {
-    md += "## " + g.dataset + "\n\n### Rate–distortion points\n\n";
+    {
+      const std::string csv = "scene_" + csv_files(g.dataset) + ".csv";
+      CRPGS_RETURN_IF_ERROR(write_file_atomic(opt.out_dir + "/" + csv, survey_csv(g)));
+      result.csvs.push_back(opt.out_dir + "/" + csv);
+    }
+    md += "## " + g.dataset + "\n\nIn the survey's CSV layout: [" + "scene_" +
+          csv_files(g.dataset) + ".csv](scene_" + csv_files(g.dataset) +
+          ".csv)\n\n### Rate–distortion points\n\n";
     html_body += "<h2>" + html_escape(g.dataset) + "</h2>\n<h3>Rate–distortion points</h3>\n";
-    Table rd = {{"method", "λ", "size (MB)", "PSNR (dB)", "SSIM", "train (s)", "encode (s)",
-                 "decode (s)", "render (ms/view)", "peak mem (MB)", "run"}};
+    Table rd = {{"method", "λ", "size (B)", "size (MiB)", "PSNR (dB)", "SSIM", "anchors",
+                 "Gaussians", "train (s)", "encode (s)", "decode (s)", "render (ms/view)",
+                 "peak mem (MiB)", "run"}};
     for (const auto& method : g.methods)
       for (const auto* r : g.by_method.at(method)) {
         const auto& m = r->metrics;
         rd.push_back(
-            {method, rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6), fmt("%.3f", m.psnr_mean),
-             fmt("%.4f", m.ssim_mean), fmt("%.1f", m.train_seconds), fmt("%.3f", m.encode_seconds),
+            {method, rate_text(r->rate), std::to_string(m.size_bytes), mib(m.size_bytes),
+             fmt("%.3f", m.psnr_mean), fmt("%.4f", m.ssim_mean), count_text(m.anchors),
+             count_text(m.gaussians), fmt("%.1f", m.train_seconds), fmt("%.3f", m.encode_seconds),
              fmt("%.3f", m.decode_seconds), fmt("%.2f", m.render_seconds_per_view * 1e3),
-             m.peak_memory_bytes > 0 ? fmt("%.0f", m.peak_memory_bytes / 1048576.0) : "—", r->id});
+             m.peak_memory_bytes > 0 ? fmt("%.0f", m.peak_memory_bytes / kMiB) : "—", r->id});
       }
     md += md_table(rd);
     html_body += html_table(rd);
 
     if (g.methods.size() >= 2) {
-      Table bd = {
-          {"anchor", "test", "BD-rate (%)", "BD-PSNR (dB)", "anchor's front", "test's front"}};
+      Table bd = {{"anchor", "test", "BD-rate (%)", "over PSNR (dB)", "BD-PSNR (dB)",
+                   "over size (MiB)", "anchor's front", "test's front"}};
       for (size_t a = 0; a < g.methods.size(); ++a)
         for (size_t t = a + 1; t < g.methods.size(); ++t) {
           const auto pa = rd_points(g.by_method.at(g.methods[a]));
           const auto pt = rd_points(g.by_method.at(g.methods[t]));
-          const auto rate = bd_rate(pa, pt);
-          const auto psnr = bd_psnr(pa, pt);
-          bd.push_back({g.methods[a], g.methods[t], rate ? fmt("%+.2f", *rate) : "—",
-                        psnr ? fmt("%+.3f", *psnr) : "—", front_text(pa), front_text(pt)});
+          const auto rate = bd_rate_figure(pa, pt);
+          const auto psnr = bd_psnr_figure(pa, pt);
+          bd.push_back({g.methods[a], g.methods[t], rate ? fmt("%+.2f", rate->value) : "—",
+                        rate ? fmt("%.3f", rate->lo) + "–" + fmt("%.3f", rate->hi) : "—",
+                        psnr ? fmt("%+.3f", psnr->value) : "—",
+                        psnr ? mib(psnr->lo) + "–" + mib(psnr->hi) : "—", front_text(pa),
+                        front_text(pt)});
         }
       md += "### BD-rate and BD-PSNR\n\n" + bd_note + md_table(bd);
       html_body +=
@@ -611,7 +729,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
     // needs no curve, so an ablation sweep with a single λ per row gets its table too.
     if (g.methods.size() >= 2) {
       const std::string& base = g.methods[0];
-      Table same = {{"method", "λ", "size (MB)", "size vs " + base + " (%)", "PSNR (dB)",
+      Table same = {{"method", "λ", "size (MiB)", "size vs " + base + " (%)", "PSNR (dB)",
                      "ΔPSNR (dB)", "SSIM"}};
       for (size_t t = 1; t < g.methods.size(); ++t)
         for (const auto* r : g.by_method.at(g.methods[t])) {
@@ -622,7 +740,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
           if (b == by_base.end()) continue;
           const auto &m = r->metrics, &mb = (*b)->metrics;
           same.push_back(
-              {g.methods[t], rate_text(r->rate), fmt("%.4f", m.size_bytes / 1e6),
+              {g.methods[t], rate_text(r->rate), mib(m.size_bytes),
                mb.size_bytes > 0
                    ? fmt("%+.2f", 100.0 * (double(m.size_bytes) / double(mb.size_bytes) - 1))
                    : "—",
@@ -637,7 +755,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
     }
 
     // Between neighbouring points of a curve: what +0.1 dB costs in size and in time.
-    Table cost = {{"method", "from λ", "to λ", "ΔPSNR (dB)", "size per +0.1 dB (KB)",
+    Table cost = {{"method", "from λ", "to λ", "ΔPSNR (dB)", "size per +0.1 dB (KiB)",
                    "train per +0.1 dB (s)", "decode per +0.1 dB (s)",
                    "render per +0.1 dB (ms/view)"}};
     for (const auto& method : g.methods) {
@@ -649,7 +767,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
         const double k = 0.1 / dp;
         cost.push_back(
             {method, rate_text(runs[i - 1]->rate), rate_text(runs[i]->rate), fmt("%+.3f", dp),
-             fmt("%+.1f", k * (double(b.size_bytes) - double(a.size_bytes)) / 1e3),
+             fmt("%+.1f", k * (double(b.size_bytes) - double(a.size_bytes)) / 1024.0),
              fmt("%+.1f", k * (b.train_seconds - a.train_seconds)),
              fmt("%+.3f", k * (b.decode_seconds - a.decode_seconds)),
              fmt("%+.3f", k * 1e3 * (b.render_seconds_per_view - a.render_seconds_per_view))});

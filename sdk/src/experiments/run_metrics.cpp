@@ -87,6 +87,8 @@ std::string to_json(const RunMetrics& in) {
   for (int c = 0; c < kNumBitstreamCategories; ++c)
     w.key(category_name(static_cast<BitstreamCategory>(c))).value(m.breakdown[c]);
   w.end_object();
+  if (m.anchors >= 0) w.key("anchors").value(m.anchors);
+  if (m.gaussians >= 0) w.key("gaussians").value(m.gaussians);
   w.key("psnr_mean").value(m.psnr_mean);
   w.key("ssim_mean").value(m.ssim_mean);
   w.key("train_seconds").value(m.train_seconds);
@@ -136,6 +138,12 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
     for (int c = 0; c < kNumBitstreamCategories; ++c) {
       CRPGS_ASSIGN_OR_RETURN(m.breakdown[c],
                              count(*b, category_name(static_cast<BitstreamCategory>(c)), false));
+    }
+  for (auto [key, out] : {std::pair<const char*, int64_t*>{"anchors", &m.anchors},
+                          {"gaussians", &m.gaussians}})
+    if (doc.find(key)) {
+      CRPGS_ASSIGN_OR_RETURN(const uint64_t n, count(doc, key, true));
+      *out = static_cast<int64_t>(n);
     }
   m.psnr_mean = num(doc, "psnr_mean");
   m.ssim_mean = num(doc, "ssim_mean");

@@ -36,12 +36,25 @@ class Pchip {
   std::vector<double> x_, y_, d_;
 };
 
+/// A Bjøntegaard figure and what it integrates over, so that a report can say it.
+struct BdFigure {
+  double value = 0;       ///< BD-rate in percent, or BD-PSNR in dB
+  double lo = 0, hi = 0;  ///< the common interval: PSNR in dB (BD-rate), size in bytes (BD-PSNR)
+  int anchor_points = 0;  ///< non-dominated points of each curve
+  int test_points = 0;
+};
+
 /// Average size difference of `test` relative to `anchor` at equal PSNR, in percent (negative:
 /// `test` is smaller). nullopt when a curve has fewer than 2 non-dominated points or their PSNR
 /// ranges do not overlap.
-std::optional<double> bd_rate(const std::vector<RdPoint>& anchor, const std::vector<RdPoint>& test);
+std::optional<BdFigure> bd_rate_figure(const std::vector<RdPoint>& anchor,
+                                       const std::vector<RdPoint>& test);
 /// Average PSNR difference of `test` minus `anchor` at equal log size, in dB; nullopt likewise
 /// when their log-size ranges do not overlap.
+std::optional<BdFigure> bd_psnr_figure(const std::vector<RdPoint>& anchor,
+                                       const std::vector<RdPoint>& test);
+/// The figures' values alone.
+std::optional<double> bd_rate(const std::vector<RdPoint>& anchor, const std::vector<RdPoint>& test);
 std::optional<double> bd_psnr(const std::vector<RdPoint>& anchor, const std::vector<RdPoint>& test);
 
 }  // namespace crpgs::experiments

@@ -47,6 +47,7 @@ struct ReportOutput {
   std::string html;      ///< path of report.html
   std::string records;   ///< the directory of the runs' records
   std::vector<std::string> pngs;
+  std::vector<std::string> csvs;   ///< per scene, the 3DGS compression survey's CSV layout
   std::vector<std::string> notes;  ///< e.g. "gnuplot not found: no plots"
 };
 

@@ -58,6 +58,10 @@ struct RunMetrics {
 
   uint64_t size_bytes = 0;         ///< total compressed size
   BitstreamBreakdown breakdown{};  ///< should add up to size_bytes
+  /// What the bitstream holds: coded anchors, and their neural Gaussians whose offset mask is
+  /// on (the most a render spawns; what an exported .ply holds). -1: not recorded (older runs).
+  int64_t anchors = -1;
+  int64_t gaussians = -1;
 
   std::vector<ViewMetrics> views;  ///< test views
   double psnr_mean = NAN;          ///< mean over views (filled from views if NaN)
