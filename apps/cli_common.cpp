@@ -200,6 +200,17 @@ Status check_output_is_not_input(const std::string& out, const std::string& sour
   return OkStatus();
 }
 
+Status not_a_model_source(const std::string& source) {
+  std::error_code ec;
+  return Status(StatusCode::kNotFound, source +
+                                           (fs::exists(source, ec) ? " is neither"
+                                                                   : ": no such file or directory; "
+                                                                     "expected") +
+                                           " a .crpgs file, a `crpgs decode` directory (" +
+                                           kDecodedModelFile +
+                                           ") nor a training run directory (config.yaml)");
+}
+
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads) {
   ModelSource s;
@@ -211,7 +222,10 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
     s.kind = "bitstream";
     CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(source));
     s.file_bytes = bytes.size();
-    CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, r));
+    auto decoded = decode_model(bytes, r);
+    if (!decoded.ok())  // the file's name, as `crpgs info` gives it
+      return Status(decoded.status().code(), source + ": " + decoded.status().message());
+    DecodeResult& dec = decoded.value();
     CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(dec.config));
     CRPGS_ASSIGN_OR_RETURN(s.decoded, model_from_decoded(dec, options));
     model_config = dec.config;
@@ -226,9 +240,7 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
     CRPGS_ASSIGN_OR_RETURN(model_config,
                            load_config((dir / "config.yaml").string(), GlobalOptions{}, r));
   } else {
-    return Status(StatusCode::kNotFound,
-                  source + " is neither a .crpgs file, a `crpgs decode` directory (" +
-                      kDecodedModelFile + ") nor a training run directory (config.yaml)");
+    return not_a_model_source(source);
   }
   s.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const bool run = s.kind == "run";

@@ -93,6 +93,8 @@ struct ModelSource {
   double load_seconds = 0;  ///< reading and decoding (not the run's checkpoint)
   AnchorModel& model() { return decoded ? *decoded : setup->model(); }
 };
+/// What `eval`, `export` and `render` say of a path that holds no model.
+Status not_a_model_source(const std::string& source);
 /// Opens a .crpgs bitstream, a `crpgs decode` directory or a training run directory. The model
 /// is built from the model's own config; --set (g.sets) then applies to the config that sets up
 /// the dataset and rasterizer (e.g. dataset.path), which is refused with a message when its
@@ -106,6 +108,7 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
 struct BitstreamReport {
   std::string path;
   uint64_t file_bytes = 0;
+  double rate_scale = 1.0;
   std::vector<SectionSize> sections;
   std::map<std::string, std::pair<double, double>> estimated_vs_coded_bits;
   double encode_seconds = 0, decode_seconds = 0;
@@ -124,10 +127,12 @@ struct BitstreamReport {
 /// Encodes the trained model (rate path required) to `path` atomically, decodes that file
 /// again, and evaluates both the training-side quantised model and the decoded one on the test
 /// views (decoded renders go to png_dir when set). Sizes are the file's size on disk.
+/// `rate_scale` scales the quantisation steps (coded_model_from).
 StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Config& config,
                                                     const ComponentRegistry& registry,
                                                     const std::string& path,
-                                                    const std::string& png_dir);
+                                                    const std::string& png_dir,
+                                                    double rate_scale = 1.0);
 void print_bitstream_report(const BitstreamReport& r);
 /// `crpgs eval FILE.crpgs`: decode, then evaluate on the test views of the dataset in its config.
 int eval_bitstream_file(const GlobalOptions& g, const std::string& path,

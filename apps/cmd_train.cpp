@@ -60,6 +60,16 @@ class CliProgress final : public ProgressCallback {
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
                  bool resume, const std::string& method = "", const std::string& prefix_dir = "",
                  bool replace = true) {
+  // What the lock adds (the directory, DIR/.lock) goes again if the set-up fails: a mistyped
+  // path leaves the file system as it was.
+  std::error_code ec;
+  const bool dir_existed = fs::exists(out_dir, ec),
+             lock_existed = fs::exists(out_dir + "/.lock", ec);
+  auto fail_before_training = [&](const Status& st) {
+    if (!lock_existed) fs::remove(out_dir + "/.lock", ec);
+    if (!dir_existed) fs::remove(out_dir, ec);  // only when empty: nothing else was written
+    return report_error(st);
+  };
   // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
   auto lock = lock_directory(out_dir);
   if (!lock.ok()) return report_error(lock.status());
@@ -74,14 +84,14 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!resume && !replace)
     for (const char* kept : {"checkpoint.pt", "metrics.json"})
       if (std::error_code ec; fs::exists(out_dir + "/" + kept, ec))
-        return report_error(Status(
+        return fail_before_training(Status(
             StatusCode::kInvalidArgument,
             out_dir + " holds a run (" + kept +
                 "): --resume continues it, --force trains a new one over it, or pick another -o"));
   // Nothing in the directory changes until the set-up (dataset, plugins, checkpoint) succeeded:
   // a typo in a path must not cost a finished run its results.
   auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
-  if (!trainer.ok()) return report_error(trainer.status());
+  if (!trainer.ok()) return fail_before_training(trainer.status());
   Trainer& t = *trainer.value();
   for (const std::string& w : t.setting_warnings())
     std::fprintf(stderr, "warning: %s\n", w.c_str());
@@ -268,6 +278,8 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   eval->callback([&g] {
     if (fs::is_regular_file(run_dir) || fs::is_regular_file(fs::path(run_dir) / kDecodedModelFile))
       throw CLI::RuntimeError(eval_bitstream_file(g, run_dir, png_dir));
+    if (!fs::is_regular_file(fs::path(run_dir) / "config.yaml"))
+      throw CLI::RuntimeError(report_error(not_a_model_source(run_dir)));
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(run_dir + "/config.yaml", g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));

@@ -29,7 +29,9 @@ void restart_for_compute_commands(int argc, char** argv) {
 /// After a parse error: names the command or long option that does not exist and the nearest
 /// one that does ("unknown command 'trian', did you mean 'train'?"); CLI11 alone says only that a
 /// subcommand is required, or that an argument was not expected.
-void explain_unknown_names(const CLI::App& app, int argc, char** argv) {
+/// Returns true when it named an unknown command (CLI11's own message would then only say that a
+/// subcommand is required, which misleads).
+bool explain_unknown_names(const CLI::App& app, int argc, char** argv) {
   const CLI::App* cmd = &app;
   std::vector<std::string> chain;  // the commands that were recognised, e.g. {plugins}
   while (!cmd->get_subcommands().empty()) {
@@ -59,9 +61,10 @@ void explain_unknown_names(const CLI::App& app, int argc, char** argv) {
       std::fprintf(stderr, "crpgs: error: unknown command '%s' for '%s'%s (commands: %s)\n",
                    arg.c_str(), where.c_str(), crpgs::did_you_mean(arg, commands).c_str(),
                    crpgs::join(commands).c_str());
-      return;
+      return true;
     }
   }
+  return false;
 }
 
 }  // namespace
@@ -95,8 +98,11 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    if (e.get_exit_code() != 0) explain_unknown_names(app, argc, argv);
-    return app.exit(e);
+    // --help/--version (0) and a command's own exit status (RuntimeError) pass through.
+    if (e.get_exit_code() == 0 || dynamic_cast<const CLI::RuntimeError*>(&e)) return app.exit(e);
+    // A usage error: exit status 2, as getopt-style tools and argparse use.
+    if (!explain_unknown_names(app, argc, argv)) app.exit(e);
+    return 2;
   } catch (const crpgs::StatusError& e) {
     return report_error(e.status);
   } catch (const std::exception& e) {

@@ -1,10 +1,12 @@
 /// @file progress_bar.cpp
 #include "progress_bar.h"
 
+#include <sys/ioctl.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <sstream>
 #include <utility>
 
@@ -29,6 +31,18 @@ std::string format_rate(double per_second) {
   std::snprintf(buf, sizeof buf, r < 10 ? "%.2f" : r < 100 ? "%.1f" : "%.0f", r);
   return buf;
 }
+
+namespace {
+
+/// The terminal's width: its window size, else $COLUMNS, else 80.
+size_t terminal_columns(FILE* out) {
+  winsize ws{};
+  if (ioctl(fileno(out), TIOCGWINSZ, &ws) == 0 && ws.ws_col > 0) return ws.ws_col;
+  if (const char* c = std::getenv("COLUMNS"); c && std::atoi(c) > 0) return size_t(std::atoi(c));
+  return 80;
+}
+
+}  // namespace
 
 ProgressBar::ProgressBar(std::string label, long total, long already_done, FILE* out)
     : label_(std::move(label)),
@@ -78,8 +92,13 @@ void ProgressBar::draw(long done, const std::string& extra, bool final) {
     const int width = 28, fill = int(frac * width);
     std::string bar(size_t(fill), '#');
     bar.resize(size_t(width), '.');
-    std::fprintf(out_, "\r\033[K%s [%s] %3.0f%% %s %s", label_.c_str(), bar.c_str(), frac * 100,
-                 stats, extra.c_str());
+    char pct[16];
+    std::snprintf(pct, sizeof pct, "%3.0f%%", frac * 100);
+    std::string line = label_ + " [" + bar + "] " + pct + " " + stats + " " + extra;
+    // A line that wraps leaves its first row behind: "\r\033[K" clears only the row it is on.
+    const size_t columns = terminal_columns(out_);
+    if (line.size() >= columns) line.resize(columns - 1);
+    std::fprintf(out_, "\r\033[K%s", line.c_str());
     if (final) std::fputc('\n', out_);
   } else {
     std::fprintf(out_, "%s %3.0f%% %s %s\n", label_.c_str(), frac * 100, stats, extra.c_str());

@@ -16,10 +16,17 @@ TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
 #else
   int rc = 0;
   std::string out = crpgs_output("trian -c x.yaml", &rc);
-  EXPECT_NE(rc, 0);
+  EXPECT_EQ(rc, 2);  // a usage error
   EXPECT_NE(out.find("unknown command 'trian' for 'crpgs', did you mean 'train'? (commands: "),
             std::string::npos)
       << out;
+  EXPECT_EQ(out.find("subcommand is required"), std::string::npos) << out;  // it was given
+  out = crpgs_output("", &rc);
+  EXPECT_EQ(rc, 2);
+  EXPECT_NE(out.find("A subcommand is required"), std::string::npos) << out;
+  out = crpgs_output("train -o y", &rc);  // -c missing
+  EXPECT_EQ(rc, 2);
+  EXPECT_NE(out.find("--config is required"), std::string::npos) << out;
   // The value of a global option is not taken for a command.
   out = crpgs_output("--plugin-dir /nonexistent trian", &rc);
   EXPECT_NE(out.find("unknown command 'trian' for 'crpgs', did you"), std::string::npos) << out;
@@ -29,7 +36,7 @@ TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
             std::string::npos)
       << out;
   out = crpgs_output("train -c x.yaml -o y --resme", &rc);
-  EXPECT_NE(rc, 0);
+  EXPECT_EQ(rc, 2);
   EXPECT_NE(out.find("unknown option '--resme' for 'crpgs train', did you mean '--resume'?"),
             std::string::npos)
       << out;
@@ -52,9 +59,37 @@ TEST(CliErrors, MisspeltCommandsAndOptionsGetTheNearestName) {
   out = crpgs_output("plugins --plugin-dir /nonexistent_plugins", &rc);
   EXPECT_EQ(rc, 0) << out;
   EXPECT_NE(out.find("/nonexistent_plugins"), std::string::npos) << out;
+  // A path that holds no model is named as what it is not; a file that is not a bitstream is
+  // named in the decoder's message, for eval and export alike.
+  out = crpgs_output("eval /nonexistent_run", &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(out.find("/nonexistent_run: no such file or directory; expected a .crpgs file"),
+            std::string::npos)
+      << out;
+  EXPECT_EQ(out.find("config.yaml:"), std::string::npos) << out;
+  const std::string not_bitstream = std::string(CRPGS_TEST_TMP_DIR) + "/cli_not_a_bitstream.crpgs";
+  {
+    FILE* f = std::fopen(not_bitstream.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("not a bitstream\n", f);
+    std::fclose(f);
+  }
+  for (const std::string& cmd :
+       {"eval " + not_bitstream, "export " + not_bitstream + " -o " + not_bitstream + ".ply"}) {
+    out = crpgs_output(cmd, &rc);
+    EXPECT_NE(rc, 0) << cmd;
+    EXPECT_NE(out.find("crpgs: error: " + not_bitstream + ": "), std::string::npos) << cmd << out;
+  }
+  // A demo cut short by train.iterations ends before its link builds: the message says what to
+  // set instead.
+  out = crpgs_output(
+      "demo -o " + std::string(CRPGS_TEST_TMP_DIR) + "/cli_demo_short --set train.iterations=60",
+      &rc);
+  EXPECT_NE(rc, 0);
+  EXPECT_NE(out.find("lower train.fast_factor instead"), std::string::npos) << out;
   // A count that is not a count says so.
   out = crpgs_output("render x.crpgs -o r --threads -2", &rc);
-  EXPECT_NE(rc, 0);
+  EXPECT_EQ(rc, 2);
   EXPECT_NE(out.find("--threads: Value -2 not in range 0 to 1024"), std::string::npos) << out;
 #endif
 }

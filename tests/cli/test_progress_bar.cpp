@@ -1,5 +1,8 @@
 // The CLI's progress bar: a resumed run's rate and ETA count only this process's units.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/ioctl.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
@@ -35,6 +38,56 @@ double rate_of(const std::string& line) {
   EXPECT_NE(slash, std::string::npos) << line;
   const size_t start = line.rfind(' ', slash) + 1;
   return std::stod(line.substr(start, slash - start));
+}
+
+// On a terminal each redraw fits in one row: a line that wraps leaves its first row behind on
+// every redraw (the trainer's extras make the line ~150 characters).
+TEST(ProgressBar, ATerminalLineFitsItsWidth) {
+  const int master = posix_openpt(O_RDWR | O_NOCTTY);
+  ASSERT_GE(master, 0);
+  ASSERT_EQ(grantpt(master), 0);
+  ASSERT_EQ(unlockpt(master), 0);
+  const int slave = open(ptsname(master), O_RDWR | O_NOCTTY);
+  ASSERT_GE(slave, 0);
+  winsize ws{};
+  ws.ws_col = 80;
+  ws.ws_row = 24;
+  ASSERT_EQ(ioctl(slave, TIOCSWINSZ, &ws), 0);
+  FILE* out = fdopen(slave, "w");
+  ASSERT_NE(out, nullptr);
+  const std::string extra(120, 'x');
+  {
+    ProgressBar bar("train", 40000, 0, out);
+    bar.update(139, extra);
+    std::this_thread::sleep_for(std::chrono::milliseconds(120));
+    bar.update(140, extra);
+    bar.finish(extra);
+  }
+  std::fclose(out);
+  std::string text;
+  char buf[4096];
+  for (ssize_t n; (n = read(master, buf, sizeof buf)) > 0;) {
+    text.append(buf, size_t(n));
+    if (text.find("40000/40000") != std::string::npos && text.find('\n') != std::string::npos)
+      break;
+  }
+  close(master);
+  // Split at every redraw ("\r\033[K") and line end: no drawn row is wider than 79 columns.
+  int rows = 0;
+  size_t start = 0;
+  while (start < text.size()) {
+    size_t end = text.find_first_of("\r\n", start);
+    if (end == std::string::npos) end = text.size();
+    std::string row = text.substr(start, end - start);
+    if (row.rfind("\033[K", 0) == 0) row.erase(0, 3);
+    if (!row.empty()) {
+      ++rows;
+      EXPECT_LE(row.size(), 79u) << row;
+      EXPECT_EQ(row.rfind("train [", 0), 0u) << row;
+    }
+    start = end + 1;
+  }
+  EXPECT_EQ(rows, 3);
 }
 
 TEST(ProgressBar, AResumedRunCountsOnlyItsOwnUnits) {

@@ -195,6 +195,15 @@ TEST(KillAndResume, SigkillAtARandomPointThenResumeEqualsAnUninterruptedRun) {
   EXPECT_NE(log.find("/nonexistent"), std::string::npos) << log;
   EXPECT_EQ(experiments::run_state(run.string()), experiments::RunState::kComplete) << log;
   EXPECT_EQ(test::read_text(run / "config.yaml"), config_before);
+  // Into a new directory, the same failure leaves no directory (and no .lock) behind.
+  const fs::path fresh = dir / "new" / "run";
+  fs::create_directories(fresh.parent_path());
+  EXPECT_NE(test::run_cli("train -c '" + cfg.string() + "' -o '" + fresh.string() + bad_dataset,
+                          dir / "failed_new.log", &log),
+            0);
+  EXPECT_NE(log.find("/nonexistent"), std::string::npos) << log;
+  EXPECT_FALSE(fs::exists(fresh)) << log;
+  EXPECT_TRUE(fs::is_empty(fresh.parent_path()));
   // --force that gets past its set-up removes the earlier run's checkpoint and results at once:
   // killed before its own first checkpoint, it leaves nothing a --resume could take for its own.
   const pid_t forced =

@@ -249,11 +249,13 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
     }
     files.push_back(p.data(ds + "_m" + std::to_string(i) + ".dat", text));
   }
+  // Each method's points joined in the order of the x column (`smooth unique` sorts by x): the
+  // files are in size order, and joining a time axis in that order zig-zags.
   auto series = [&](const std::string& using_clause) {
     std::string s;
     for (size_t i = 0; i < files.size(); ++i)
       s += (i ? ", " : "") + gp_quote(files[i]) + " using " + using_clause +
-           " with linespoints lw 2 pt 7 title " + gp_quote(g.methods[i]);
+           " smooth unique with linespoints lw 2 pt 7 title " + gp_quote(g.methods[i]);
     return s;
   };
 

@@ -139,8 +139,8 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
       CRPGS_ASSIGN_OR_RETURN(m.breakdown[c],
                              count(*b, category_name(static_cast<BitstreamCategory>(c)), false));
     }
-  for (auto [key, out] : {std::pair<const char*, int64_t*>{"anchors", &m.anchors},
-                          {"gaussians", &m.gaussians}})
+  for (auto [key, out] :
+       {std::pair<const char*, int64_t*>{"anchors", &m.anchors}, {"gaussians", &m.gaussians}})
     if (doc.find(key)) {
       CRPGS_ASSIGN_OR_RETURN(const uint64_t n, count(doc, key, true));
       *out = static_cast<int64_t>(n);

@@ -901,7 +901,13 @@ StatusOr<LinkOptions> link_options_from_config(const Config& resolved, const Sch
                         " (after the schedule's scaling) is outside [" +
                         std::to_string(schedule.update_until) + ", " +
                         std::to_string(schedule.iterations) +
-                        "]: the end of growing and pruning (update_until) to the last iteration");
+                        "]: the end of growing and pruning (update_until) to the last iteration" +
+                        (b > schedule.iterations
+                             ? std::string("; train.iterations ends the run before it without "
+                                           "moving the phases: lower train.fast_factor instead "
+                                           "(the whole schedule scales), or set train.link_builds "
+                                           "inside the run")
+                             : std::string()));
   o.lr_start = *std::min_element(schedule.link_builds.begin(), schedule.link_builds.end());
   o.lr_end = std::max(o.lr_start + 1, schedule.iterations);
   return o;
