@@ -1,10 +1,12 @@
 /// @file cmd_codec.cpp
 /// @brief `crpgs info`: what a bitstream is made of.
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <map>
 
 #include "cli_common.h"
+#include "core/size_text.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/coding/bitstream.h"
@@ -36,18 +38,19 @@ void print_link_rate_report(const LinkRateReport& r, uint64_t side_bytes) {
 StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cfg,
                                                     const ComponentRegistry& registry,
                                                     const std::string& path,
-                                                    const std::string& png_dir) {
+                                                    const std::string& png_dir, double rate_scale) {
   using clock = std::chrono::steady_clock;
   auto secs = [](clock::time_point a) {
     return std::chrono::duration<double>(clock::now() - a).count();
   };
   BitstreamReport rep;
   rep.path = path;
+  rep.rate_scale = rate_scale;
   // The codec reads the model on the CPU (its arithmetic is the CPU's); training is over.
   t.model().to(torch::kCPU);
   auto t0 = clock::now();
   QuantizedAttributes q;
-  CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q));
+  CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q, rate_scale));
   CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
                          encode_model(coded, cfg, codec_components_of(t.model())));
   CRPGS_RETURN_IF_ERROR(write_file_atomic(path, enc.bytes));
@@ -94,9 +97,12 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
 }
 
 void print_bitstream_report(const BitstreamReport& r) {
-  std::printf("bitstream: %s, %llu bytes (%.4f MiB) — encode %.2f s, decode %.2f s\n",
+  std::printf("bitstream: %s, %llu bytes (%.4f MiB) — encode %.2f s, decode %.2f s%s\n",
               r.path.c_str(), static_cast<unsigned long long>(r.file_bytes),
-              double(r.file_bytes) / 1048576.0, r.encode_seconds, r.decode_seconds);
+              double(r.file_bytes) / 1048576.0, r.encode_seconds, r.decode_seconds,
+              r.rate_scale == 1.0
+                  ? ""
+                  : (", rate scale " + std::to_string(r.rate_scale).substr(0, 8)).c_str());
   std::vector<std::vector<std::string>> rows = {{"SECTION", "CATEGORY", "BYTES", "%"}};
   char pct[32];
   for (const auto& s : r.sections) {
@@ -206,7 +212,39 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   return 0;
 }
 
-int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out) {
+/// The rate scale of the best-quality file at or under `target` bytes: the smallest scale whose
+/// file fits (the steps grow with the scale, so the size falls with it), by bisection on
+/// log(scale) over [1/16, 256] with in-memory encodes.
+StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t target) {
+  t.model().to(torch::kCPU);
+  auto size_at = [&](double scale) -> StatusOr<uint64_t> {
+    CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), nullptr, scale));
+    CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
+                           encode_model(coded, cfg, codec_components_of(t.model())));
+    return uint64_t(enc.bytes.size());
+  };
+  double lo = 1.0 / 16, hi = 256;  // log-scale bracket: size(hi) <= target < size(lo)
+  CRPGS_ASSIGN_OR_RETURN(const uint64_t smallest, size_at(hi));
+  if (smallest > target)
+    return Status(StatusCode::kInvalidArgument,
+                  "--target-size " + std::to_string(target) +
+                      " B is below what this model "
+                      "reaches: " +
+                      std::to_string(smallest) + " B at rate scale " + std::to_string(int(hi)) +
+                      " (positions, MLPs, grids and masks do not shrink "
+                      "with the steps); train with a larger rate.lambda for a smaller file");
+  CRPGS_ASSIGN_OR_RETURN(const uint64_t largest, size_at(lo));
+  if (largest <= target) return lo;  // the finest steps searched fit
+  for (int i = 0; i < 24 && hi / lo > 1.0005; ++i) {
+    const double mid = std::sqrt(lo * hi);
+    CRPGS_ASSIGN_OR_RETURN(const uint64_t size, size_at(mid));
+    (size <= target ? hi : lo) = mid;
+  }
+  return hi;
+}
+
+int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out,
+               double rate_scale, const std::string& target_size) {
   ComponentRegistry r = load_registry(g);
   if (Status st = check_output_is_not_input(out, run_dir, "scene.crpgs"); !st.ok())
     return report_error(st);
@@ -217,9 +255,22 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
   if (!trainer.ok()) return report_error(trainer.status());
   if (trainer.value()->iteration() == 0)
     return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));
-  auto rep = write_and_check_bitstream(*trainer.value(), cfg.value(), r, out, "");
+  if (!target_size.empty()) {
+    auto target = parse_byte_size(target_size);
+    if (!target.ok()) return report_error(target.status());
+    auto scale = scale_for_target_size(*trainer.value(), cfg.value(), target.value());
+    if (!scale.ok()) return report_error(scale.status());
+    rate_scale = scale.value();
+  }
+  auto rep = write_and_check_bitstream(*trainer.value(), cfg.value(), r, out, "", rate_scale);
   if (!rep.ok()) return report_error(rep.status());
   print_bitstream_report(rep.value());
+  if (!target_size.empty())
+    std::printf(
+        "target %s: %llu bytes written (%.2f %% under it) at rate scale %.4f\n",
+        target_size.c_str(), static_cast<unsigned long long>(rep->file_bytes),
+        100.0 * (1.0 - double(rep->file_bytes) / double(parse_byte_size(target_size).value())),
+        rate_scale);
   return 0;
 }
 
@@ -253,7 +304,8 @@ int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
 }
 
 void add_codec_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string path, run_dir, out;
+  static std::string path, run_dir, out, target_size;
+  static double rate_scale = 1.0;
   static bool verbose = false;
   auto* enc = app.add_subcommand("encode",
                                  "Write the bitstream of a trained run (HAC/CRP-GS "
@@ -263,7 +315,17 @@ void add_codec_commands(CLI::App& app, GlobalOptions& g) {
   enc->add_option("--set", g.sets,
                   "override a key of the run's config (e.g. dataset.path=DIR when the dataset "
                   "has moved)");
-  enc->callback([&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out)); });
+  enc->add_option("--rate-scale", rate_scale,
+                  "multiply every quantisation step by this (> 1: a smaller file of coarser "
+                  "values from the same trained model; stored in the file, decoding needs nothing "
+                  "else)")
+      ->check(CLI::PositiveNumber);
+  enc->add_option("--target-size", target_size,
+                  "the best-quality file at or under this size (e.g. 1.5MiB, 800KB, 2000000; "
+                  "KiB/MiB are 2^10/2^20 bytes, KB/MB 10^3/10^6): the rate scale is searched")
+      ->excludes("--rate-scale");
+  enc->callback(
+      [&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out, rate_scale, target_size)); });
 
   auto* cmd = app.add_subcommand("info",
                                  "Show what a .crpgs bitstream is made of: every section "

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <map>
 
 #include "cli_test_util.h"
 #include "crpgs/atomic_file.h"
@@ -482,6 +483,113 @@ TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
   for (const char* key : {"full_iterations", "link_builds"})
     EXPECT_EQ(YAML::Dump(demo->section("train")[key]), YAML::Dump(method->section("train")[key]))
         << key;
+#endif
+}
+
+// One trained model, many rates: `crpgs encode --rate-scale` writes smaller files of coarser
+// steps that decode bit-exactly in fresh processes on other thread counts (the encoder's symbols);
+// `--target-size` lands at or under each target, within 3 % for targets the model reaches; an
+// unreachable target is refused with a message; every rate's file is refused when truncated.
+TEST(DecodeCli, RatesFromOneTrainedModel) {
+#ifndef CRPGS_CLI_PATH
+  GTEST_SKIP() << "built without the crpgs CLI (CRPGS_BUILD_APPS=OFF)";
+#else
+  const ComponentRegistry& reg = test::test_registry();
+  if (!reg.find(CRPGS_KIND_CONTEXT, "hash_grid") || !reg.find(CRPGS_KIND_ENTROPY, "gaussian"))
+    GTEST_SKIP() << "hash_grid/gaussian plugins not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli_rates";
+  fs::remove_all(dir);
+  fs::create_directories(dir / "run");
+  auto raw = Config::from_string(kConfig, "decode_cli_rates.yaml");
+  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
+  auto cfg = raw->resolve(reg);
+  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
+  ASSERT_TRUE(cfg->save((dir / "run" / "config.yaml").string()).ok());
+  auto trainer = setup_training(cfg.value(), reg, SetupOptions{(dir / "run").string(), false});
+  ASSERT_TRUE(trainer.ok()) << trainer.status().to_string();
+  ASSERT_TRUE(trainer.value()->train().ok());
+  const std::string run = (dir / "run").string();
+
+  std::string log;
+  auto size_of = [](const fs::path& p) { return uint64_t(fs::file_size(p)); };
+  // Scale 1 is the training's own file; larger scales give smaller files.
+  std::map<double, uint64_t> sizes;
+  for (double scale : {1.0, 1.5, 3.0, 8.0}) {
+    const fs::path file = dir / ("s" + std::to_string(scale).substr(0, 3) + ".crpgs");
+    ASSERT_EQ(run_cli("encode '" + run + "' -o '" + file.string() + "' --rate-scale " +
+                          std::to_string(scale),
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("decoded from the file"), std::string::npos) << log;
+    sizes[scale] = size_of(file);
+  }
+  EXPECT_LT(sizes[1.5], sizes[1.0]);
+  EXPECT_LT(sizes[3.0], sizes[1.5]);
+  EXPECT_LT(sizes[8.0], sizes[3.0]);
+
+  // Bit-exact at a scaled rate: two fresh processes (1 and 2 threads) decode the encoder's
+  // symbols.
+  const fs::path scaled = dir / "s3.0.crpgs";
+  for (int threads : {1, 2})
+    ASSERT_EQ(run_cli("decode '" + scaled.string() + "' -o '" +
+                          (dir / ("dec" + std::to_string(threads))).string() + "' --threads " +
+                          std::to_string(threads),
+                      dir / "log.txt", &log),
+              0)
+        << log;
+  {
+    QuantizedAttributes q;
+    auto coded = coded_model_from(trainer.value()->model(), &q, 3.0);
+    ASSERT_TRUE(coded.ok()) << coded.status().to_string();
+    const auto a = read_archive(dir / "dec1" / "decoded.pt");
+    const auto b = read_archive(dir / "dec2" / "decoded.pt");
+    ASSERT_FALSE(a.empty());
+    for (const auto& [k, v] : a) EXPECT_TRUE(torch::equal(v, b.at(k))) << k;
+    EXPECT_TRUE(torch::equal(a.at("feature_symbols"), coded->feature_sym));
+    EXPECT_TRUE(torch::equal(a.at("scaling_symbols"), coded->scaling_sym));
+    EXPECT_TRUE(torch::equal(a.at("offset_symbols"), coded->offset_sym));
+    EXPECT_TRUE(torch::equal(a.at("features"), q.features));
+    EXPECT_TRUE(torch::equal(a.at("offsets"), q.offsets));
+  }
+
+  // Target sizes: each at or under its target; within 3 % where the target is a size the model
+  // reaches (the size at a scale), as the scale is searched finely.
+  for (uint64_t target : {sizes[1.5], sizes[3.0], (sizes[1.0] + sizes[8.0]) / 2}) {
+    const fs::path file = dir / ("t" + std::to_string(target) + ".crpgs");
+    ASSERT_EQ(run_cli("encode '" + run + "' -o '" + file.string() + "' --target-size " +
+                          std::to_string(target),
+                      dir / "log.txt", &log),
+              0)
+        << log;
+    EXPECT_NE(log.find("% under it) at rate scale"), std::string::npos) << log;
+    EXPECT_LE(size_of(file), target) << log;
+    if (target == sizes[1.5] || target == sizes[3.0]) {
+      EXPECT_GE(double(size_of(file)), 0.97 * double(target)) << log;
+    }
+  }
+  const fs::path unreachable = dir / "too_small.crpgs";
+  EXPECT_NE(run_cli("encode '" + run + "' -o '" + unreachable.string() + "' --target-size 2KiB",
+                    dir / "log.txt", &log),
+            0);
+  EXPECT_NE(log.find("--target-size 2048 B is below what this model reaches"), std::string::npos)
+      << log;
+  EXPECT_FALSE(fs::exists(unreachable));
+
+  // Every rate's file, truncated, is refused with a message.
+  for (const auto& [scale, size] : sizes) {
+    const fs::path file = dir / ("s" + std::to_string(scale).substr(0, 3) + ".crpgs");
+    auto bytes = read_file_bytes(file.string());
+    ASSERT_TRUE(bytes.ok());
+    for (size_t len : {size_t(0), size_t(16), bytes->size() / 2, bytes->size() - 1}) {
+      std::vector<uint8_t> cut(bytes->begin(), bytes->begin() + long(len));
+      auto dec = decode_model(cut, reg);
+      EXPECT_FALSE(dec.ok()) << "scale " << scale << " truncated to " << len;
+      if (!dec.ok()) {
+        EXPECT_FALSE(dec.status().message().empty());
+      }
+    }
+  }
 #endif
 }
 

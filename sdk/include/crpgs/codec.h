@@ -149,7 +149,11 @@ StatusOr<DecodeResult> decode_model(const std::vector<uint8_t>& bytes,
 /// The coded form of a trained model with the rate path attached: its active anchors in canonical
 /// Morton order, quantised by AnchorModel::quantize (so the steps are the decoder's). `q`
 /// (optional) receives the quantised attributes, for evaluating the training-side quantised model.
-StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q = nullptr);
+/// `rate_scale` (> 0) multiplies the base steps Q0 of every attribute, so every step
+/// Q = Q0·(1 + tanh a) with it: above 1 a smaller file of coarser values, from the same trained
+/// model. Q0 is in the file's HEAD section, so the decoder needs nothing else to follow.
+StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q = nullptr,
+                                      double rate_scale = 1.0);
 /// The components a trained model is coded with.
 CodecComponents codec_components_of(const AnchorModel& model);
 

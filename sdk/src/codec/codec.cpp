@@ -719,10 +719,15 @@ StatusOr<DecodeResult> decode_model(const std::vector<uint8_t>& bytes,
   }
 }
 
-StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q_out) {
+StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttributes* q_out,
+                                      double rate_scale) {
   if (!model.has_rate())
     return Status(StatusCode::kInvalidArgument,
                   "encode: the model has no rate path (config needs `context` and `entropy`)");
+  if (!(rate_scale > 0) || !std::isfinite(rate_scale))
+    return Status(StatusCode::kInvalidArgument,
+                  "encode: the rate scale must be a finite number > 0 (got " +
+                      std::to_string(rate_scale) + ")");
   if (!model.device().is_cpu())
     return Status(StatusCode::kInvalidArgument,
                   "encode: the model is on " + model.device().str() +
@@ -766,11 +771,12 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   m.voxels = vox.index({perm}).contiguous();
   m.mlps = model.mlp_tensors();
   m.q0 = model.rate_options().q0;
+  for (double* q0 : {&m.q0.feature, &m.q0.scaling, &m.q0.offset}) *q0 *= rate_scale;
   QuantizedAttributes q;
   auto quantise = [&] {
     // In coding order, so the steps come from the same context chunks as the decoder's.
     const auto coded_order = coding_order(m.links, n);
-    q = model.quantize(canon.index_select(0, coded_order));
+    q = model.quantize(*model.context(), m.q0, canon.index_select(0, coded_order));
     auto back = torch::empty_like(coded_order);
     back.index_put_({coded_order}, torch::arange(n, torch::kLong));
     auto rows = [&](torch::Tensor& t) { t = t.index_select(0, back); };
