@@ -45,6 +45,25 @@ train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
 using test::read_archive;
 using test::run_cli;
 
+/// kConfig trained in this process into DIR/run, a fresh directory holding its config as
+/// `crpgs train` leaves a run.
+struct SmallRun {
+  Config config;
+  std::unique_ptr<Trainer> trainer;
+};
+StatusOr<SmallRun> train_small_run(const fs::path& dir, const ComponentRegistry& reg) {
+  fs::remove_all(dir);
+  fs::create_directories(dir / "run");
+  CRPGS_ASSIGN_OR_RETURN(Config raw, Config::from_string(kConfig, "decode_cli.yaml"));
+  SmallRun r;
+  CRPGS_ASSIGN_OR_RETURN(r.config, raw.resolve(reg));
+  CRPGS_RETURN_IF_ERROR(r.config.save((dir / "run" / "config.yaml").string()));
+  CRPGS_ASSIGN_OR_RETURN(
+      r.trainer, setup_training(r.config, reg, SetupOptions{(dir / "run").string(), false}));
+  CRPGS_RETURN_IF_ERROR(r.trainer->train());
+  return r;
+}
+
 std::vector<fs::path> pngs_in(const fs::path& dir) {
   std::vector<fs::path> out;
   if (fs::is_directory(dir))
@@ -64,24 +83,17 @@ TEST(DecodeCli, BitExactAcrossProcessesAndThreadCounts) {
   if (!reg.find(CRPGS_KIND_CONTEXT, "hash_grid") || !reg.find(CRPGS_KIND_ENTROPY, "gaussian"))
     GTEST_SKIP() << "hash_grid/gaussian plugins not built in " << CRPGS_PLUGIN_BUILD_DIR;
   const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli";
-  fs::remove_all(dir);
-  fs::create_directories(dir / "run");
 
   // 1. Train and encode in this process; keep the encoder's symbols and quantised attributes.
-  auto raw = Config::from_string(kConfig, "decode_cli.yaml");
-  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
-  auto cfg = raw->resolve(reg);
-  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
-  ASSERT_TRUE(cfg->save((dir / "run" / "config.yaml").string()).ok());
-  auto trainer = setup_training(cfg.value(), reg, SetupOptions{(dir / "run").string(), false});
-  ASSERT_TRUE(trainer.ok()) << trainer.status().to_string();
-  Trainer& t = *trainer.value();
-  ASSERT_TRUE(t.train().ok());
+  auto small = train_small_run(dir, reg);
+  ASSERT_TRUE(small.ok()) << small.status().to_string();
+  const Config& cfg = small->config;
+  Trainer& t = *small->trainer;
   QuantizedAttributes q;
   auto coded = coded_model_from(t.model(), &q);
   ASSERT_TRUE(coded.ok()) << coded.status().to_string();
   ASSERT_GT(coded->voxels.size(0), 10);
-  auto enc = encode_model(coded.value(), cfg.value(), codec_components_of(t.model()));
+  auto enc = encode_model(coded.value(), cfg, codec_components_of(t.model()));
   ASSERT_TRUE(enc.ok()) << enc.status().to_string();
   const std::string file = (dir / "scene.crpgs").string();
   ASSERT_TRUE(write_file_atomic(file, enc->bytes).ok());
@@ -498,16 +510,8 @@ TEST(DecodeCli, RatesFromOneTrainedModel) {
   if (!reg.find(CRPGS_KIND_CONTEXT, "hash_grid") || !reg.find(CRPGS_KIND_ENTROPY, "gaussian"))
     GTEST_SKIP() << "hash_grid/gaussian plugins not built in " << CRPGS_PLUGIN_BUILD_DIR;
   const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "decode_cli_rates";
-  fs::remove_all(dir);
-  fs::create_directories(dir / "run");
-  auto raw = Config::from_string(kConfig, "decode_cli_rates.yaml");
-  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
-  auto cfg = raw->resolve(reg);
-  ASSERT_TRUE(cfg.ok()) << cfg.status().to_string();
-  ASSERT_TRUE(cfg->save((dir / "run" / "config.yaml").string()).ok());
-  auto trainer = setup_training(cfg.value(), reg, SetupOptions{(dir / "run").string(), false});
-  ASSERT_TRUE(trainer.ok()) << trainer.status().to_string();
-  ASSERT_TRUE(trainer.value()->train().ok());
+  auto small = train_small_run(dir, reg);
+  ASSERT_TRUE(small.ok()) << small.status().to_string();
   const std::string run = (dir / "run").string();
 
   std::string log;
@@ -540,7 +544,7 @@ TEST(DecodeCli, RatesFromOneTrainedModel) {
         << log;
   {
     QuantizedAttributes q;
-    auto coded = coded_model_from(trainer.value()->model(), &q, 3.0);
+    auto coded = coded_model_from(small->trainer->model(), &q, 3.0);
     ASSERT_TRUE(coded.ok()) << coded.status().to_string();
     const auto a = read_archive(dir / "dec1" / "decoded.pt");
     const auto b = read_archive(dir / "dec2" / "decoded.pt");
