@@ -219,13 +219,13 @@ const char* kDemoConfig = R"yaml(
 # paper's 40k-iteration phase boundaries. Ends with the bitstream, decoded.
 dataset: {format: synthetic}
 features: {type: sfa, ratio: 0.4, n_levels: 5, resolutions: [18, 41, 96, 222, 514],
-           n_levels_2d: 0, resolutions_2d: []}
+           n_levels_2d: 0, resolutions_2d: [], zero_init: true}
 context: {type: hash_grid}
 entropy: {type: gaussian}
 links: {type: link_cohs}
 rate: {lambda: 0.002, recompute_bounds: false}
 train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interval: 100,
-        checkpoint_interval: 500}
+        checkpoint_interval: 500, feature_model_start: growing_end}
 )yaml";
 
 }  // namespace

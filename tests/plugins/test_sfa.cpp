@@ -137,6 +137,23 @@ TEST(SfaComponent, OutputIsSharedFeatureThenCodedUnchanged) {
   EXPECT_GT((shared[0] - shared[1]).abs().max().item<float>(), 0.f);
 }
 
+// zero_init: f_s = 0 everywhere at first (as HAC's initial features), whatever the grid holds.
+TEST(SfaComponent, ZeroInitStartsTheSharedFeatureAtZero) {
+  auto sfa = make_sfa(std::string(kSmallGrid) + ", zero_init: true");
+  ASSERT_TRUE(sfa);
+  EXPECT_TRUE(sfa->hyperparams()["zero_init"].as<bool>());
+  {
+    torch::NoGradGuard g;
+    sfa->parameters()[0].uniform_(-1, 1);
+  }
+  const auto out = sfa->forward(torch::randn({100, 30}), random_positions(100, 5));
+  EXPECT_EQ(out.slice(1, 0, 20).abs().max().item<float>(), 0.f);
+  // The default keeps libtorch's Linear init: f_s varies with the position.
+  auto dflt = make_sfa(std::string(kSmallGrid));
+  EXPECT_FALSE(dflt->hyperparams()["zero_init"].as<bool>());
+  EXPECT_GT(dflt->parameters()[1].abs().max().item<float>(), 0.f);
+}
+
 TEST(SfaComponent, PositionsOutsideTheUnitCubeAreClamped) {
   auto sfa = make_sfa(std::string(kSmallGrid));
   ASSERT_TRUE(sfa);

@@ -508,5 +508,71 @@ TEST(ShippedConfigs, ResolveAndFollowTheMethod) {
   }
 }
 
+// SFA with train.feature_model_start: growing_end and features.zero_init: f_s = 0 and the shared
+// grid and its Linear as initialised (lr 0) while anchors grow and are pruned, learning after
+// (crpgs.yaml's setting: shared features must not decide which anchors are pruned).
+TEST(SharedFeatures, HeldAtZeroUntilGrowingAndPruningEnd) {
+  const auto& reg = test::rate_registry();
+  if (!reg.find(CRPGS_KIND_FEATURES, "sfa") || !reg.find(CRPGS_KIND_CONTEXT, "hash_grid"))
+    GTEST_SKIP() << "the sfa/hash_grid plugins are not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  SKIP_WITHOUT_PLUGINS();
+  // update_until is 15 at fast_factor 0.001.
+  auto trained = [&](int iterations) {
+    auto raw = Config::from_string(
+        R"yaml(
+dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
+          synthetic_points: 1000}
+context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
+          n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
+features: {type: sfa, ratio: 0.4, n_levels: 3, resolutions: [8, 16, 32], log2_hashmap_size: 9,
+           n_levels_2d: 0, resolutions_2d: [], zero_init: true}
+entropy: {type: gaussian}
+rate: {lambda: 0.002, recompute_bounds: false}
+rasterizer: {type: cpu, threads: 1}
+train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, checkpoint_interval: 0,
+        threads: 1, feature_model_start: growing_end}
+)yaml",
+        "held_sfa.yaml");
+    EXPECT_TRUE(raw.ok()) << raw.status().to_string();
+    EXPECT_TRUE(raw->apply_override("train.iterations=" + std::to_string(iterations)).ok());
+    auto cfg = raw->resolve(reg);
+    EXPECT_TRUE(cfg.ok()) << cfg.status().to_string();
+    auto t = setup_training(cfg.value(), reg, SetupOptions{});
+    EXPECT_TRUE(t.ok()) << t.status().to_string();
+    if (iterations > 0) {
+      EXPECT_TRUE(t.value()->train().ok());
+    }
+    return std::move(t).value();
+  };
+  const auto fresh = trained(0);
+  const auto held = trained(12);
+  const auto learning = trained(20);
+  const auto p0 = fresh->model().feature_model()->parameters();
+  const auto p12 = held->model().feature_model()->parameters();
+  const auto p20 = learning->model().feature_model()->parameters();
+  ASSERT_EQ(p0.size(), 3u);
+  EXPECT_EQ(p0[1].abs().max().item<float>(), 0.f);  // Linear weight and bias start at zero
+  EXPECT_EQ(p0[2].abs().max().item<float>(), 0.f);
+  for (size_t i = 0; i < p0.size(); ++i) EXPECT_TRUE(torch::equal(p0[i], p12[i])) << i;
+  EXPECT_EQ(held->model().learning_rate("feature_model"), 0.0);
+  EXPECT_GT(learning->model().learning_rate("feature_model"), 0.0);
+  EXPECT_GT(p20[1].abs().max().item<float>(), 0.f);  // it learns after growing ends
+  // The shipped method holds SFA until the full schedule's growing ends (15k; 1.5k when fast).
+  const std::string root = std::string(CRPGS_SOURCE_DIR) + "/configs";
+  auto shipped = Config::load_file(root + "/crpgs.yaml");
+  ASSERT_TRUE(shipped.ok());
+  auto r = shipped->resolve(reg);
+  ASSERT_TRUE(r.ok()) << r.status().to_string();
+  EXPECT_TRUE(r->section("features")["zero_init"].as<bool>());
+  auto mo = model_options_from_config(r.value());
+  ASSERT_TRUE(mo.ok()) << mo.status().to_string();
+  EXPECT_EQ(mo->lr.feature_model_start, 15000);
+  auto hac = Config::load_file(root + "/hac.yaml");
+  ASSERT_TRUE(hac.ok());
+  auto hac_mo = model_options_from_config(hac->resolve(reg).value());
+  ASSERT_TRUE(hac_mo.ok());
+  EXPECT_EQ(hac_mo->lr.feature_model_start, 0);
+}
+
 }  // namespace
 }  // namespace crpgs

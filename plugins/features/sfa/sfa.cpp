@@ -20,6 +20,7 @@ const char* schema() {
   static const std::string s =
       R"yaml(
 - {key: ratio, type: float, default: 0.4, min: 0, max: 1, doc: "fraction rho of the feature taken from the shared grid: D_s = round(rho D_0), the coded D_i = D_0 - D_s; 0 is plain HAC (no grid)"}
+- {key: zero_init, type: bool, default: false, doc: "start the Linear(grid -> D_s) at zero, so that f_s = 0 as HAC's features are until it learns (with train.feature_model_start: growing_end, training is HAC's until anchor growing and pruning end); false: libtorch's default uniform init"}
 )yaml" +
       hash_grid::grid_schema_yaml() + hash_grid::binarize_schema_yaml();
   return s.c_str();
@@ -31,6 +32,7 @@ class SharedFeatureAggregation final : public FeatureModel {
  public:
   SharedFeatureAggregation(const YAML::Node& c, const crpgs_create_args& args)
       : ratio_(c["ratio"].as<double>()),
+        zero_init_(c["zero_init"].as<bool>()),
         grid_(hash_grid::GridConfig::from_yaml(c, "sfa")),
         feature_dim_(args.feature_dim) {
     if (feature_dim_ < 1) throw std::invalid_argument("sfa: feature_dim must be positive");
@@ -44,6 +46,11 @@ class SharedFeatureAggregation final : public FeatureModel {
     spec_ = grid_.spec();
     table_ = hash_grid::init_table(spec_, args.device_cuda != 0);
     linear_ = torch::nn::Linear(spec_.output_dim(), shared_dim_);
+    if (zero_init_) {
+      torch::NoGradGuard no_grad;
+      linear_->weight.zero_();
+      linear_->bias.zero_();
+    }
     linear_->to(table_.device());
   }
 
@@ -52,6 +59,7 @@ class SharedFeatureAggregation final : public FeatureModel {
     YAML::Node n;
     n["type"] = type_name();
     n["ratio"] = ratio_;
+    n["zero_init"] = zero_init_;
     grid_.write_yaml(n);
     n["binarize"] = grid_.binarize;
     return n;
@@ -137,6 +145,7 @@ class SharedFeatureAggregation final : public FeatureModel {
   }
 
   double ratio_;
+  bool zero_init_;
   hash_grid::GridConfig grid_;
   int64_t feature_dim_, shared_dim_ = 0;
   GridSpec spec_;

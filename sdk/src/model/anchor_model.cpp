@@ -308,8 +308,10 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
   else if (g.schedule == "leaf_mlp")  // its own window (method.md §7.7)
     g.lr = log_lerp(link_opt.lr_leaf_init, link_opt.lr_leaf_final, it - link_opt.lr_start,
                     link_opt.lr_end - link_opt.lr_start);
-  else
-    g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
+  else  // the feature model (e.g. SFA's shared grid)
+    g.lr = it < lr.feature_model_start
+               ? 0.0
+               : log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
 }
 
 torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points) {

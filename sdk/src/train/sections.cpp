@@ -154,6 +154,11 @@ const std::vector<CoreSection>& core_sections() {
            range(P("lr_appearance", T::kFloat, YAML::Node(0.05), "appearance embedding lr"), 0, 10),
            range(P("lr_appearance_final", T::kFloat, YAML::Node(0.0005), "final appearance lr"), 0,
                  10),
+           choice(P("feature_model_start", T::kChoice, YAML::Node("start"),
+                    "when the feature model (SFA's shared grid) starts to learn: start, or "
+                    "growing_end (after anchor growing and pruning; it keeps its initial state "
+                    "until then)"),
+                  {"start", "growing_end"}),
            range(P("lr_feature_model", T::kFloat, YAML::Node(0.005),
                    "feature-model parameters lr (e.g. SFA's grid)"),
                  0, 10),

@@ -12,12 +12,15 @@ namespace crpgs {
 
 std::string shared_prefix_key(const Config& resolved) {
   if (!resolved.section("context")) return "";
-  // train.device: cpu, the default, is left out: the keys of CPU runs stay those of the builds
-  // before the key existed, whose published prefixes and running sweeps they continue.
+  // Keys added after runs were published, at their defaults, are left out: the keys of those
+  // runs stay those of the builds before the keys existed, whose published prefixes and running
+  // sweeps they continue.
   YAML::Node tree = YAML::Load(resolved.dump());
-  if (tree["train"] && tree["train"]["device"] &&
-      tree["train"]["device"].as<std::string>() == "cpu")
-    tree["train"].remove("device");
+  for (const auto& [key, default_value] :
+       {std::pair<const char*, const char*>{"device", "cpu"}, {"feature_model_start", "start"}})
+    if (tree["train"] && tree["train"][key] &&
+        tree["train"][key].as<std::string>() == default_value)
+      tree["train"].remove(key);
   YAML::Emitter out;
   out << tree;
   auto blanked = Config::from_string(out.c_str(), "<prefix key>");

@@ -809,6 +809,8 @@ StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved) {
     auto to = train_options_from_config(resolved);
     if (!to.ok()) return to.status();
     lr.max_steps = to->schedule.lr_steps;
+    if (get<std::string>(t, "feature_model_start", "start") == "growing_end")
+      lr.feature_model_start = to->schedule.update_until;
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("model/scene config: ") + e.what());
   }
