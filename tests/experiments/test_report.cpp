@@ -191,6 +191,29 @@ TEST(Report, SummaryOverScenesAndSurveyCsvPerScene) {
   EXPECT_NE(md.find("[scene_flower.csv](scene_flower.csv)"), std::string::npos);
 }
 
+// Runs from several directories (sweeps): the first directory's methods come first, whatever
+// their runs' indices in their own sweeps, so its first method anchors the BD figures.
+TEST(Report, TheFirstDirectorysMethodsComeFirst) {
+  const std::string runs = make_fixture("order");
+  const std::string other = fresh_dir("order_other") + "/runs";
+  auto m = read_run_metrics(runs + "/fern/hac/lambda-0/metrics.json");
+  ASSERT_TRUE(m.ok());
+  m->method = "ablation";
+  fs::create_directories(other + "/fern/ablation/lambda-0");
+  ASSERT_TRUE(write_run_metrics(other + "/fern/ablation/lambda-0/metrics.json", *m).ok());
+  write_text(other + "/fern/ablation/lambda-0/run.json",
+             "{\"id\": \"fern/ablation/lambda-0\", \"index\": 0, \"method\": \"ablation\", "
+             "\"dataset\": \"fern\", \"rate\": 0.004}\n");
+  auto c = collect_runs({runs, other});
+  ASSERT_TRUE(c.ok()) << c.status().message();
+  ASSERT_EQ(c->runs.size(), 13u);
+  EXPECT_EQ(c->runs.front().method, "hac");
+  EXPECT_EQ(c->runs.back().method, "ablation");
+  auto reversed = collect_runs({other, runs});
+  ASSERT_TRUE(reversed.ok());
+  EXPECT_EQ(reversed->runs.front().method, "ablation");
+}
+
 bool is_png(const std::string& bytes) {
   return bytes.rfind("\x89PNG\r\n\x1a\n", 0) == 0;
 }

@@ -448,6 +448,10 @@ bool safe_relative_id(const std::string& id) {
   return true;
 }
 
+// Runs of an earlier runs directory come first (its first method is the anchor of the BD
+// figures), then by their index in their sweep.
+constexpr int64_t kRunsPerDirectory = 1000000000;  // above any index run.json may hold
+
 // Marks a report's records directory, so that a later report reading the runs directory that
 // holds it does not take the old copies for runs.
 constexpr const char* kRecordsMarker = ".crpgs-report-records";
@@ -513,7 +517,8 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
   CollectedRuns out;
   std::error_code ec;
   const fs::path excluded = exclude.empty() ? fs::path() : fs::weakly_canonical(exclude, ec);
-  for (const auto& runs_dir : runs_dirs) {
+  for (size_t dir_index = 0; dir_index < runs_dirs.size(); ++dir_index) {
+    const std::string& runs_dir = runs_dirs[dir_index];
     if (!fs::is_directory(runs_dir, ec))
       return Status(StatusCode::kNotFound, runs_dir + ": not a directory");
     std::vector<fs::path> dirs;
@@ -539,6 +544,7 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
       ReportRun r;
       r.dir = dir;
       r.id = fs::relative(d, runs_dir, ec).string();
+      r.order = int64_t(dir_index) * kRunsPerDirectory;
       auto m = read_run_metrics(dir + "/metrics.json");
       const bool finished = m.ok() && !run_marked_started(dir);
       if (finished) {
@@ -556,7 +562,7 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
           if (auto* v = j.find("dataset"); v && v->is_string()) r.dataset = v->string;
           if (auto* v = j.find("rate"); v && v->is_number()) r.rate = v->number;
           if (auto* v = j.find("index"); v && v->is_number() && v->number >= 0 && v->number < 1e9)
-            r.order = int(v->number);
+            r.order = int64_t(dir_index) * kRunsPerDirectory + int64_t(v->number);
         }
       }
       // The same run seen before (an older record, or an unfinished copy): this one replaces

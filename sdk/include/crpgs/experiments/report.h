@@ -19,7 +19,7 @@ struct ReportRun {
   std::string method;   ///< run.json method, else metrics.method
   std::string dataset;  ///< run.json dataset, else metrics.dataset
   double rate = NAN;    ///< run.json rate, else metrics.lambda
-  int order = 0;        ///< run.json index (sweep order), for a stable method order
+  int64_t order = 0;  ///< runs directory, then run.json index (sweep order): a stable method order
   RunMetrics metrics;
 };
 
