@@ -97,12 +97,11 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
 }
 
 void print_bitstream_report(const BitstreamReport& r) {
+  char scale[48] = "";
+  if (r.rate_scale != 1.0) std::snprintf(scale, sizeof scale, ", rate scale %.6g", r.rate_scale);
   std::printf("bitstream: %s, %llu bytes (%.4f MiB) — encode %.2f s, decode %.2f s%s\n",
               r.path.c_str(), static_cast<unsigned long long>(r.file_bytes),
-              double(r.file_bytes) / 1048576.0, r.encode_seconds, r.decode_seconds,
-              r.rate_scale == 1.0
-                  ? ""
-                  : (", rate scale " + std::to_string(r.rate_scale).substr(0, 8)).c_str());
+              double(r.file_bytes) / 1048576.0, r.encode_seconds, r.decode_seconds, scale);
   std::vector<std::vector<std::string>> rows = {{"SECTION", "CATEGORY", "BYTES", "%"}};
   char pct[32];
   for (const auto& s : r.sections) {
@@ -228,11 +227,10 @@ StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t t
   if (smallest > target)
     return Status(StatusCode::kInvalidArgument,
                   "--target-size " + std::to_string(target) +
-                      " B is below what this model "
-                      "reaches: " +
-                      std::to_string(smallest) + " B at rate scale " + std::to_string(int(hi)) +
-                      " (positions, MLPs, grids and masks do not shrink "
-                      "with the steps); train with a larger rate.lambda for a smaller file");
+                      " B is below what this model reaches: " + std::to_string(smallest) +
+                      " B at rate scale " + std::to_string(int(hi)) +
+                      " (positions, MLPs, grids and masks do not shrink with the steps); train "
+                      "with a larger rate.lambda for a smaller file");
   CRPGS_ASSIGN_OR_RETURN(const uint64_t largest, size_at(lo));
   if (largest <= target) return lo;  // the finest steps searched fit
   for (int i = 0; i < 24 && hi / lo > 1.0005; ++i) {
@@ -255,22 +253,22 @@ int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::st
   if (!trainer.ok()) return report_error(trainer.status());
   if (trainer.value()->iteration() == 0)
     return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));
+  uint64_t target = 0;
   if (!target_size.empty()) {
-    auto target = parse_byte_size(target_size);
-    if (!target.ok()) return report_error(target.status());
-    auto scale = scale_for_target_size(*trainer.value(), cfg.value(), target.value());
+    auto parsed = parse_byte_size(target_size);
+    if (!parsed.ok()) return report_error(parsed.status());
+    target = parsed.value();
+    auto scale = scale_for_target_size(*trainer.value(), cfg.value(), target);
     if (!scale.ok()) return report_error(scale.status());
     rate_scale = scale.value();
   }
   auto rep = write_and_check_bitstream(*trainer.value(), cfg.value(), r, out, "", rate_scale);
   if (!rep.ok()) return report_error(rep.status());
   print_bitstream_report(rep.value());
-  if (!target_size.empty())
-    std::printf(
-        "target %s: %llu bytes written (%.2f %% under it) at rate scale %.4f\n",
-        target_size.c_str(), static_cast<unsigned long long>(rep->file_bytes),
-        100.0 * (1.0 - double(rep->file_bytes) / double(parse_byte_size(target_size).value())),
-        rate_scale);
+  if (target > 0)
+    std::printf("target %s: %llu bytes written (%.2f %% under it) at rate scale %.4f\n",
+                target_size.c_str(), static_cast<unsigned long long>(rep->file_bytes),
+                100.0 * (1.0 - double(rep->file_bytes) / double(target)), rate_scale);
   return 0;
 }
 

@@ -47,8 +47,7 @@ struct SweepConfig {
 
 struct SweepDataset {
   std::string name;
-  std::string
-      scene;  ///< a scene file (configs/scenes/*/scene.yaml) laid over each config; may be empty
+  std::string scene;  ///< configs/scenes/*/scene.yaml laid over each config; may be empty
   Overrides set;
 };
 
