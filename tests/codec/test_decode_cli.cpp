@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <map>
+#include <regex>
 
 #include "cli_test_util.h"
 #include "crpgs/atomic_file.h"
@@ -474,6 +475,14 @@ TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
       << log;
   EXPECT_NE(log.find("decoded from the file"), std::string::npos) << log;
   EXPECT_TRUE(fs::exists(dir / "run" / "metrics.json")) << log;
+  // The three phases' speeds, their iterations adding up to the run's.
+  std::smatch phases;
+  ASSERT_TRUE(std::regex_search(log, phases,
+                                std::regex("speed by phase: raw attributes ([0-9]+) it at [0-9.]+ "
+                                           "it/s; fixed noise ([0-9]+) it at [0-9.]+ it/s; rate "
+                                           "phase ([0-9]+) it at [0-9.]+ it/s")))
+      << log;
+  EXPECT_EQ(std::stoi(phases[1]) + std::stoi(phases[2]) + std::stoi(phases[3]), 40) << log;
 
   auto demo = Config::load_file((dir / "run" / "config.yaml").string());
   ASSERT_TRUE(demo.ok()) << demo.status().to_string();

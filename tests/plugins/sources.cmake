@@ -2,6 +2,7 @@
 # components through the registry (CRPGS_PLUGIN_BUILD_DIR).
 list(APPEND CRPGS_TORCH_TEST_SOURCES
   plugins/test_hash_grid.cpp
+  plugins/test_hash_grid_cuda.cpp
   plugins/test_gaussian_coding.cpp
   plugins/test_sfa.cpp
   ../plugins/context/hash_grid/binary_grid.cpp

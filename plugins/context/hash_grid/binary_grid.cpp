@@ -152,6 +152,10 @@ torch::Tensor grid_lookup(const GridSpec& spec, const torch::Tensor& positions01
                           const torch::Tensor& table, bool binarize) {
   const auto pos = positions01.to(table.device(), table.scalar_type());  // [N, 3]
   if (table.device().is_cpu()) return GridFunction::apply(pos, table, &spec, binarize);
+#if CRPGS_GRID_CUDA
+  if (table.is_cuda() && grid_cuda_kernels_enabled())
+    return grid_lookup_cuda(spec, pos, table, binarize);
+#endif
   return grid_forward_reference(spec, pos, table, binarize);
 }
 

@@ -12,11 +12,13 @@
 #include <vector>
 
 #include "crpgs/target_clones.h"
+#include "grid_cuda.h"
 
 namespace crpgs::hash_grid {
 namespace {
 
-constexpr uint32_t kPrimes[3] = {1u, 2654435761u, 805459861u};
+constexpr uint32_t kPrimes[3] = {cuda_kernels::kHashPrimeX, cuda_kernels::kHashPrimeY,
+                                 cuda_kernels::kHashPrimeZ};
 
 /// Points whose corners are computed together: one vector of lanes per corner term.
 constexpr int kLanes = 16;
@@ -235,7 +237,10 @@ void backward_impl(const GridSpec& spec, const scalar_t* pos, const scalar_t* gr
   });
 }
 
-void check_inputs(const GridSpec& spec, const at::Tensor& positions01, const at::Tensor& table) {
+}  // namespace
+
+void check_grid_inputs(const GridSpec& spec, const at::Tensor& positions01,
+                       const at::Tensor& table) {
   TORCH_CHECK(positions01.dim() == 2 && positions01.size(1) == 3,
               "hash_grid: positions must be [N, 3], got ", positions01.sizes());
   TORCH_CHECK(
@@ -243,8 +248,6 @@ void check_inputs(const GridSpec& spec, const at::Tensor& positions01, const at:
       "hash_grid: table must be [", spec.n_entries, ", ", spec.n_features, "], got ",
       table.sizes());
 }
-
-}  // namespace
 
 GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
                         const std::vector<int64_t>& res2, int log2_2, int64_t n_features) {
@@ -292,7 +295,7 @@ GridSpec make_grid_spec(const std::vector<int64_t>& res3, int log2_3,
 
 at::Tensor grid_forward(const GridSpec& spec, const at::Tensor& positions01,
                         const at::Tensor& table, bool binarize) {
-  check_inputs(spec, positions01, table);
+  check_grid_inputs(spec, positions01, table);
   TORCH_CHECK(table.device().is_cpu() && positions01.device().is_cpu(),
               "hash_grid: CPU kernel called on non-CPU tensors");
   const auto pos = positions01.to(table.scalar_type()).contiguous();
@@ -307,7 +310,7 @@ at::Tensor grid_forward(const GridSpec& spec, const at::Tensor& positions01,
 
 at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
                          const at::Tensor& table, const at::Tensor& grad_out, bool binarize) {
-  check_inputs(spec, positions01, table);
+  check_grid_inputs(spec, positions01, table);
   TORCH_CHECK(grad_out.dim() == 2 && grad_out.size(0) == positions01.size(0) &&
                   grad_out.size(1) == spec.output_dim(),
               "hash_grid: grad_out must be [N, ", spec.output_dim(), "]");
@@ -348,7 +351,7 @@ at::Tensor lookup_values(const at::Tensor& table, bool binarize) {
 
 at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
                                   const at::Tensor& table, bool binarize) {
-  check_inputs(spec, positions01, table);
+  check_grid_inputs(spec, positions01, table);
   const at::Tensor values = lookup_values(table, binarize);
   const auto pos = positions01.detach().to(table.scalar_type());
   const int64_t n = pos.size(0), F = spec.n_features, L = int64_t(spec.levels.size());

@@ -57,6 +57,19 @@ at::Tensor grid_backward(const GridSpec& spec, const at::Tensor& positions01,
 at::Tensor grid_forward_reference(const GridSpec& spec, const at::Tensor& positions01,
                                   const at::Tensor& table, bool binarize);
 
+/// Throws (c10::Error) unless positions01 is [N, 3] and table [n_entries, n_features].
+void check_grid_inputs(const GridSpec& spec, const at::Tensor& positions01,
+                       const at::Tensor& table);
+
+/// The CUDA kernels (grid_cuda.cu) as an autograd function of the table, for CUDA tensors:
+/// forward bit-equal to grid_forward, backward summed with atomics (order varies). Defined only
+/// in plugins built with CRPGS_GRID_CUDA (a CUDA libtorch and nvcc; grid_cuda_glue.cpp).
+at::Tensor grid_lookup_cuda(const GridSpec& spec, const at::Tensor& positions01,
+                            const at::Tensor& table, bool binarize);
+/// False when the environment sets CRPGS_GRID_CUDA=0: lookups on CUDA tensors then run
+/// grid_forward_reference (ATen ops) instead, for A/B timings.
+bool grid_cuda_kernels_enabled();
+
 /// sign(x) with HAC's convention (+1 where x >= 0, else -1), forward value of the binarisation.
 at::Tensor binarize_values(const at::Tensor& table);
 

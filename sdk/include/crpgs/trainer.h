@@ -4,6 +4,7 @@
 /// through a ProgressCallback, writes checkpoints atomically and resumes bit-identically.
 #pragma once
 
+#include <array>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -135,6 +136,10 @@ struct StepTimes {
   double backward = 0;   ///< the whole backward pass (rasterizer + MLPs + loss)
   double optimizer = 0;  ///< statistics, growing/pruning, Adam
   int iterations = 0;
+  /// Whole steps (link builds included) per phase of the schedule, in QuantPhase order: raw
+  /// attributes (it <= quant_start), fixed noise (<= rate_start), the rate phase.
+  std::array<double, 3> phase_seconds{};
+  std::array<int, 3> phase_iterations{};
 };
 
 class Trainer {

@@ -137,6 +137,7 @@ StatusOr<double> Trainer::step() {
                   "iteration " + std::to_string(iteration_) +
                       ": no anchors left (pruning removed every one: all were transparent); "
                       "check the dataset's images and poses, or lower model.min_opacity");
+  const auto t_begin = Clock::now();
   const int it = iteration_ + 1;
   const Schedule& sc = options_.schedule;
   const int v = view_for_iteration(it);
@@ -144,6 +145,9 @@ StatusOr<double> Trainer::step() {
   RenderSettings settings;
   settings.background = model_->options().effects.background;
   model_->update_learning_rates(it);
+  const QuantPhase phase = it <= sc.quant_start  ? QuantPhase::kRaw
+                           : it <= sc.rate_start ? QuantPhase::kFixedNoise
+                                                 : QuantPhase::kAdaptiveNoise;
   const bool rate_path = model_->has_rate();
   if (rate_path) {  // method.md §2.3
     if (it == sc.rate_start && model_->rate_options().recompute_bounds) model_->recompute_bounds();
@@ -151,9 +155,7 @@ StatusOr<double> Trainer::step() {
         model_->has_links() &&
         std::find(sc.link_builds.begin(), sc.link_builds.end(), it) != sc.link_builds.end();
     if (build) CRPGS_RETURN_IF_ERROR(model_->rebuild_links(options_.seed + uint64_t(it)).status());
-    model_->set_quant_phase(it <= sc.quant_start  ? QuantPhase::kRaw
-                            : it <= sc.rate_start ? QuantPhase::kFixedNoise
-                                                  : QuantPhase::kAdaptiveNoise);
+    model_->set_quant_phase(phase);
   }
 
   auto t0 = Clock::now();
@@ -247,6 +249,8 @@ StatusOr<double> Trainer::step() {
   times_.backward += dt(t3, t4);
   times_.optimizer += dt(t4, t5);
   times_.iterations += 1;
+  times_.phase_seconds[size_t(phase)] += dt(t_begin, t5);
+  times_.phase_iterations[size_t(phase)] += 1;
   last_gaussians_ = ng.batch.means.size(0);
   last_l1_ = l1.item<double>();
   iteration_ = it;
