@@ -212,6 +212,39 @@ coding::Bytes relabelled(const coding::Bytes& file, uint16_t minor, bool bad_sca
   return w.finish();
 }
 
+// The rasterizer and train.device are the encoding machine's: a file written where the `cuda`
+// rasterizer trained the model decodes in a CPU-only build, with the CPU rasterizer.
+TEST(Codec, AFileTrainedOnAGpuDecodesWhereOnlyTheCpuRasterizerIs) {
+  auto f = make_fixture(300, 14);
+  if (!f.ok()) GTEST_SKIP() << f.status().message();
+  if (registry().find(CRPGS_KIND_RASTERIZER, "gpu_only_test_rasterizer"))
+    GTEST_SKIP() << "the test's missing rasterizer exists";
+  ASSERT_TRUE(f->config.set("train.device", YAML::Node("cuda")).ok());
+  auto enc = encode_model(f->model, f->config, f->components);
+  ASSERT_TRUE(enc.ok()) << enc.status().to_string();
+  auto ct = coding::ContainerReader::parse(enc->bytes);
+  ASSERT_TRUE(ct.ok());
+  coding::ContainerWriter w(ct->header.config_hash, ct->header.flags);
+  for (coding::Section sec : ct->sections) {
+    if (sec.id == "CONF") {
+      auto conf = Config::from_string(std::string(sec.payload.begin(), sec.payload.end()), "CONF");
+      ASSERT_TRUE(conf.ok()) << conf.status().to_string();
+      YAML::Node r(YAML::NodeType::Map);
+      r["type"] = "gpu_only_test_rasterizer";
+      r["device"] = 0;
+      ASSERT_TRUE(conf->set("rasterizer", r).ok());
+      const std::string text = conf->dump();
+      sec.payload.assign(text.begin(), text.end());
+    }
+    ASSERT_TRUE(w.add_section(std::move(sec)).ok());
+  }
+  auto dec = decode_model(w.finish(), registry());
+  ASSERT_TRUE(dec.ok()) << dec.status().to_string();
+  EXPECT_EQ(dec->config.section("rasterizer")["type"].as<std::string>(), "cpu");
+  EXPECT_EQ(dec->config.section("train")["device"].as<std::string>(), "cpu");
+  expect_same(f->model, dec->model);
+}
+
 // Formats from 1.1 compute the entropy parameters portably; a 1.0 file is decoded with the old
 // (BLAS) arithmetic, and a stream that fails to decode says why that may be.
 TEST(Codec, FormatOneZeroStreamErrorsNameTheKernelDependence) {

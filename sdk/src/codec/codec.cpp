@@ -471,6 +471,21 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
 }
 
 namespace {
+/// The rasterizer and train.device are the encoding machine's choices, not the model's: a file
+/// trained on a GPU decodes where this build lacks its rasterizer, rendering with the CPU's.
+Status use_the_cpu_where_the_rasterizer_is_missing(Config* c, const ComponentRegistry& registry) {
+  const YAML::Node r = c->section("rasterizer");
+  if (!r.IsMap() || !r["type"].IsScalar() ||
+      registry.find(CRPGS_KIND_RASTERIZER, r["type"].Scalar()))
+    return OkStatus();
+  YAML::Node cpu(YAML::NodeType::Map);
+  cpu["type"] = "cpu";
+  CRPGS_RETURN_IF_ERROR(c->set("rasterizer", cpu));
+  const YAML::Node t = c->section("train");
+  if (t.IsMap() && t["device"]) CRPGS_RETURN_IF_ERROR(c->set("train.device", YAML::Node("cpu")));
+  return OkStatus();
+}
+
 StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
                                               const ComponentRegistry& registry) {
   CRPGS_ASSIGN_OR_RETURN(coding::Container ct, coding::ContainerReader::parse(ByteSpan(bytes)));
@@ -505,6 +520,7 @@ StatusOr<DecodeResult> decode_model_unchecked(const std::vector<uint8_t>& bytes,
   CRPGS_ASSIGN_OR_RETURN(
       Config raw, Config::from_string(std::string(conf->payload.begin(), conf->payload.end()),
                                       "<bitstream config>"));
+  CRPGS_RETURN_IF_ERROR(use_the_cpu_where_the_rasterizer_is_missing(&raw, registry));
   CRPGS_ASSIGN_OR_RETURN(out.config, raw.resolve(registry));
   crpgs_create_args args = create_args_for(out.config);
   auto& c = out.components;
