@@ -12,6 +12,7 @@
 #include "crpgs/codec.h"
 #include "crpgs/components.h"
 #include "crpgs/config.h"
+#include "crpgs/experiments/run_metrics.h"
 #include "crpgs/link_report.h"
 #include "crpgs/registry.h"
 #include "crpgs/runtime.h"
@@ -134,6 +135,9 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Conf
                                                     const std::string& png_dir,
                                                     double rate_scale = 1.0);
 void print_bitstream_report(const BitstreamReport& r);
+/// metrics.json's fields of a written and checked bitstream: λ, size and its breakdown, coded
+/// anchors and Gaussians, codec times, the decoded model's test views.
+experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config);
 /// `crpgs eval FILE.crpgs`: decode, then evaluate on the test views of the dataset in its config.
 int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
                         const std::string& png_dir);

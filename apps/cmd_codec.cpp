@@ -5,15 +5,19 @@
 #include <filesystem>
 #include <map>
 
+#include <ATen/Parallel.h>
+
 #include "cli_common.h"
 #include "core/size_text.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
 #include "crpgs/coding/bitstream.h"
+#include "crpgs/experiments/sweep.h"
 #include "crpgs/hashing.h"
 #include "crpgs/trainer.h"
 
 namespace crpgs::cli {
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -94,6 +98,29 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
     rep.decoded_views.push_back({v.psnr, v.ssim, deval.seconds_per_view});
   }
   return rep;
+}
+
+experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config) {
+  experiments::RunMetrics m;
+  m.size_bytes = r.file_bytes;
+  m.anchors = r.anchors;
+  m.gaussians = r.gaussians;
+  for (const auto& s : r.sections) {
+    const std::string c = section_category(s.id);
+    for (int k = 0; k < experiments::kNumBitstreamCategories; ++k)
+      if (c == experiments::category_name(static_cast<experiments::BitstreamCategory>(k)))
+        m.breakdown[size_t(k)] += s.bytes;
+  }
+  uint64_t listed = 0;
+  for (auto b : m.breakdown) listed += b;
+  m.breakdown[size_t(experiments::BitstreamCategory::kOther)] += m.size_bytes - listed;
+  m.encode_seconds = r.encode_seconds;
+  m.decode_seconds = r.decode_seconds;
+  m.lambda = config.section("rate")["lambda"].as<double>();
+  for (size_t i = 0; i < r.view_names.size(); ++i)
+    m.views.push_back(
+        {r.view_names[i], r.decoded_views[i][0], r.decoded_views[i][1], r.decoded_views[i][2]});
+  return m;
 }
 
 void print_bitstream_report(const BitstreamReport& r) {
@@ -241,34 +268,92 @@ StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t t
   return hi;
 }
 
+/// The trainer of a finished run, for re-encoding it.
+StatusOr<std::unique_ptr<Trainer>> trained_run(const GlobalOptions& g, const std::string& run_dir,
+                                               const ComponentRegistry& r, Config* cfg) {
+  CRPGS_ASSIGN_OR_RETURN(*cfg, load_config(run_dir + "/config.yaml", g, r));
+  CRPGS_RETURN_IF_ERROR(check_dataset(*cfg));
+  CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> t,
+                         setup_training_and_warn(*cfg, r, reading_setup(run_dir)));
+  if (t->iteration() == 0) return Status(StatusCode::kNotFound, "no checkpoint in " + run_dir);
+  return t;
+}
+
 int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out,
                double rate_scale, const std::string& target_size) {
   ComponentRegistry r = load_registry(g);
   if (Status st = check_output_is_not_input(out, run_dir, "scene.crpgs"); !st.ok())
     return report_error(st);
-  auto cfg = load_config(run_dir + "/config.yaml", g, r);
-  if (!cfg.ok()) return report_error(cfg.status());
-  if (Status st = check_dataset(cfg.value()); !st.ok()) return report_error(st);
-  auto trainer = setup_training_and_warn(cfg.value(), r, reading_setup(run_dir));
+  Config cfg;
+  auto trainer = trained_run(g, run_dir, r, &cfg);
   if (!trainer.ok()) return report_error(trainer.status());
-  if (trainer.value()->iteration() == 0)
-    return report_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir));
   uint64_t target = 0;
   if (!target_size.empty()) {
     auto parsed = parse_byte_size(target_size);
     if (!parsed.ok()) return report_error(parsed.status());
     target = parsed.value();
-    auto scale = scale_for_target_size(*trainer.value(), cfg.value(), target);
+    auto scale = scale_for_target_size(*trainer.value(), cfg, target);
     if (!scale.ok()) return report_error(scale.status());
     rate_scale = scale.value();
   }
-  auto rep = write_and_check_bitstream(*trainer.value(), cfg.value(), r, out, "", rate_scale);
+  auto rep = write_and_check_bitstream(*trainer.value(), cfg, r, out, "", rate_scale);
   if (!rep.ok()) return report_error(rep.status());
   print_bitstream_report(rep.value());
   if (target > 0)
     std::printf("target %s: %llu bytes written (%.2f %% under it) at rate scale %.4f\n",
                 target_size.c_str(), static_cast<unsigned long long>(rep->file_bytes),
                 100.0 * (1.0 - double(rep->file_bytes) / double(target)), rate_scale);
+  return 0;
+}
+
+/// `crpgs encode RUN --rate-scales 1,2,3`: the finished run's model re-encoded at each scale into
+/// RUN/rates/scale-<s>/ (scene.crpgs, metrics.json): a "one model, many rates" curve, which
+/// `crpgs report` draws beside the per-λ curves. A scale whose metrics.json exists is kept.
+int encode_rates(const GlobalOptions& g, const std::string& run_dir,
+                 const std::vector<double>& scales) {
+  ComponentRegistry r = load_registry(g);
+  auto base = experiments::read_run_metrics(run_dir + "/metrics.json");
+  if (!base.ok())
+    return report_error(Status(base.status().code(), "--rate-scales re-encodes a finished run: " +
+                                                         base.status().message()));
+  if (!std::isnan(base->rate_scale))
+    return report_error(Status(StatusCode::kInvalidArgument,
+                               run_dir + " is itself a re-encoded file, not a training run"));
+  Config cfg;
+  std::unique_ptr<Trainer> trainer;
+  for (double s : scales) {
+    const fs::path dir = experiments::rate_scale_dir(run_dir, s);
+    if (experiments::read_run_metrics((dir / "metrics.json").string()).ok()) {
+      std::printf("rate scale %g: done before (%s), kept\n", s, dir.c_str());
+      continue;
+    }
+    if (!trainer) {  // loaded once, and only when a scale needs it
+      auto t = trained_run(g, run_dir, r, &cfg);
+      if (!t.ok()) return report_error(t.status());
+      trainer = std::move(t).value();
+    }
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + dir.string()));
+    auto rep = write_and_check_bitstream(*trainer, cfg, r, (dir / "scene.crpgs").string(), "", s);
+    if (!rep.ok()) return report_error(rep.status());
+    experiments::RunMetrics m = bitstream_metrics(rep.value(), cfg);
+    m.method = base->method + " (one model)";
+    m.base_method = base->method;
+    m.rate_scale = s;
+    m.dataset = base->dataset;
+    m.config_hash = base->config_hash;
+    m.train_seconds = base->train_seconds;  // the one training all the scales share
+    m.peak_memory_bytes = experiments::peak_rss_bytes();
+    m.provenance =
+        experiments::this_process_provenance(base->provenance.seed, at::get_num_threads(), "cpu");
+    if (Status st = experiments::write_run_metrics((dir / "metrics.json").string(), m); !st.ok())
+      return report_error(st);
+    std::printf("rate scale %g: %llu bytes (%.4f MiB), decoded %.3f dB (quantised %.3f dB): %s\n",
+                s, static_cast<unsigned long long>(rep->file_bytes),
+                double(rep->file_bytes) / 1048576.0, rep->decoded_psnr, rep->quantized_psnr,
+                dir.c_str());
+  }
   return 0;
 }
 
@@ -304,12 +389,13 @@ int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
 void add_codec_commands(CLI::App& app, GlobalOptions& g) {
   static std::string path, run_dir, out, target_size;
   static double rate_scale = 1.0;
+  static std::vector<double> rate_scales;
   static bool verbose = false;
   auto* enc = app.add_subcommand("encode",
                                  "Write the bitstream of a trained run (HAC/CRP-GS "
                                  "configs), decode it back and check it");
   enc->add_option("RUN_DIR", run_dir, "directory written by `crpgs train`")->required();
-  enc->add_option("-o,--output", out, "bitstream file")->required();
+  auto* output = enc->add_option("-o,--output", out, "bitstream file");
   enc->add_option("--set", g.sets,
                   "override a key of the run's config (e.g. dataset.path=DIR when the dataset "
                   "has moved)");
@@ -322,8 +408,20 @@ void add_codec_commands(CLI::App& app, GlobalOptions& g) {
                   "the best-quality file at or under this size (e.g. 1.5MiB, 800KB, 2000000; "
                   "KiB/MiB are 2^10/2^20 bytes, KB/MB 10^3/10^6): the rate scale is searched")
       ->excludes("--rate-scale");
-  enc->callback(
-      [&g] { throw CLI::RuntimeError(encode_run(g, run_dir, out, rate_scale, target_size)); });
+  enc->add_option("--rate-scales", rate_scales,
+                  "a \"one model, many rates\" curve: re-encode the finished run at each of "
+                  "these scales (e.g. 1,1.5,2,3) into RUN_DIR/rates/scale-S/ with its "
+                  "metrics.json, which `crpgs report` draws beside the per-λ curves")
+      ->delimiter(',')
+      ->check(CLI::PositiveNumber)
+      ->excludes(output)
+      ->excludes("--rate-scale")
+      ->excludes("--target-size");
+  enc->callback([&g] {
+    if (!rate_scales.empty()) throw CLI::RuntimeError(encode_rates(g, run_dir, rate_scales));
+    if (out.empty()) throw CLI::RequiredError("-o,--output (or --rate-scales)");
+    throw CLI::RuntimeError(encode_run(g, run_dir, out, rate_scale, target_size));
+  });
 
   auto* cmd = app.add_subcommand("info",
                                  "Show what a .crpgs bitstream is made of: every section "

@@ -264,6 +264,8 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.sweep_size = static_cast<int>(runs.size());
   opt.stop = &g_stop;
   if (spec->share_prefix) opt.prefix_dir = ex::sweep_prefix_dir(runs_dir);
+  opt.one_model_rate = spec->one_model_rate;
+  opt.one_model_scales = spec->one_model_scales;
   std::signal(SIGINT, on_stop_signal);
   std::signal(SIGTERM, on_stop_signal);
   if (std::signal(SIGHUP, on_stop_signal) == SIG_IGN) std::signal(SIGHUP, SIG_IGN);  // nohup
@@ -290,6 +292,11 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
 
   std::printf("sweep %s: %zu runs in %s\n", spec->name.c_str(), runs.size(), runs_dir.c_str());
   if (a.slurm) {
+    if (!spec->one_model_scales.empty())
+      std::printf(
+          "one_model: the array trains; re-encode the finished runs at the one-model "
+          "scales with a local `crpgs sweep %s` afterwards (minutes per run)\n",
+          a.file.c_str());
     std::vector<int> pending;
     size_t running = 0;
     for (const auto& r : runs) {

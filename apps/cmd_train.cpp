@@ -4,6 +4,8 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include <ATen/Parallel.h>
+
 #include "cli_common.h"
 #include "core/text_list.h"
 #include "crpgs/atomic_file.h"
@@ -182,24 +184,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
         write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/renders");
     if (!rep.ok()) return report_error(rep.status());
     print_bitstream_report(rep.value());
-    m.size_bytes = rep->file_bytes;
-    m.anchors = rep->anchors;
-    m.gaussians = rep->gaussians;
-    for (const auto& s : rep->sections) {
-      const std::string c = section_category(s.id);
-      for (int k = 0; k < experiments::kNumBitstreamCategories; ++k)
-        if (c == experiments::category_name(static_cast<experiments::BitstreamCategory>(k)))
-          m.breakdown[size_t(k)] += s.bytes;
-    }
-    uint64_t listed = 0;
-    for (auto b : m.breakdown) listed += b;
-    m.breakdown[size_t(experiments::BitstreamCategory::kOther)] += m.size_bytes - listed;
-    m.encode_seconds = rep->encode_seconds;
-    m.decode_seconds = rep->decode_seconds;
-    m.lambda = cfg.section("rate")["lambda"].as<double>();
-    for (size_t i = 0; i < rep->view_names.size(); ++i)
-      m.views.push_back({rep->view_names[i], rep->decoded_views[i][0], rep->decoded_views[i][1],
-                         rep->decoded_views[i][2]});
+    m = bitstream_metrics(rep.value(), cfg);
   } else {
     auto eval = t.evaluate(out_dir + "/renders");
     if (!eval.ok()) return report_error(eval.status());
@@ -217,6 +202,8 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
   if (!m.trace.empty()) m.trace_views = t.trace_views();
   m.peak_memory_bytes = experiments::peak_rss_bytes();
+  m.provenance = experiments::this_process_provenance(int64_t(t.options().seed),
+                                                      at::get_num_threads(), t.options().device);
   st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
   if (!st.ok()) return report_error(st);
   experiments::mark_run_finished(out_dir);

@@ -79,9 +79,10 @@ int main(int argc, char** argv) {
       "priors) on the HAC / Scaffold-GS anchor representation"};
   app.require_subcommand(1);
   const auto bi = crpgs::build_info();
-  app.set_version_flag("--version", std::string("crpgs ") + bi.version + " (" + bi.compiler +
-                                        ", libtorch " + bi.torch_version + ", CUDA " +
-                                        (bi.cuda ? "on" : "off") + ")");
+  app.set_version_flag("--version", std::string("crpgs ") + bi.version + " (commit " +
+                                        bi.git_commit + ", " + bi.compiler + ", libtorch " +
+                                        bi.torch_version + ", CUDA " + (bi.cuda ? "on" : "off") +
+                                        ")");
   GlobalOptions g;
   app.add_option("--plugin-dir", g.plugin_dirs,
                  "extra plugin directory, searched before CRPGS_PLUGIN_PATH and the install dir "

@@ -17,9 +17,12 @@
 #include "cli_test_util.h"
 #include "crpgs/atomic_file.h"
 #include "crpgs/codec.h"
+#include "crpgs/experiments/run_metrics.h"
+#include "crpgs/experiments/sweep.h"
 #include "crpgs/gaussian_export.h"
 #include "crpgs/image.h"
 #include "crpgs/trainer.h"
+#include "crpgs/version.h"
 #include "test_registry.h"
 #include "train/rate_test_util.h"
 
@@ -483,6 +486,14 @@ TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
                                            "phase ([0-9]+) it at [0-9.]+ it/s")))
       << log;
   EXPECT_EQ(std::stoi(phases[1]) + std::stoi(phases[2]) + std::stoi(phases[3]), 40) << log;
+  // Where the result came from.
+  auto metrics = experiments::read_run_metrics((dir / "run" / "metrics.json").string());
+  ASSERT_TRUE(metrics.ok()) << metrics.status().to_string();
+  EXPECT_EQ(metrics->provenance.version, build_info().version);
+  EXPECT_EQ(metrics->provenance.commit, build_info().git_commit);
+  EXPECT_EQ(metrics->provenance.threads, 1);
+  EXPECT_EQ(metrics->provenance.device, "cpu");
+  EXPECT_EQ(metrics->provenance.seed, 0);
 
   auto demo = Config::load_file((dir / "run" / "config.yaml").string());
   ASSERT_TRUE(demo.ok()) << demo.status().to_string();
@@ -588,6 +599,38 @@ TEST(DecodeCli, RatesFromOneTrainedModel) {
   EXPECT_NE(log.find("--target-size 2048 B is below what this model reaches"), std::string::npos)
       << log;
   EXPECT_FALSE(fs::exists(unreachable));
+
+  // A one-model curve: the run's files at several scales, each with its metrics.json, beside
+  // the run (what `crpgs report` reads); the scale-1 file is the training's own.
+  experiments::RunMetrics finished;
+  finished.method = "small";
+  finished.dataset = "synthetic";
+  finished.lambda = 1e-3;
+  finished.size_bytes = sizes[1.0];
+  finished.psnr_mean = 20;
+  finished.train_seconds = 12.5;
+  ASSERT_TRUE(experiments::write_run_metrics(run + "/metrics.json", finished).ok());
+  ASSERT_EQ(run_cli("encode '" + run + "' --rate-scales 1,3", dir / "log.txt", &log), 0) << log;
+  for (double scale : {1.0, 3.0}) {
+    const std::string at = experiments::rate_scale_dir(run, scale);
+    auto m = experiments::read_run_metrics(at + "/metrics.json");
+    ASSERT_TRUE(m.ok()) << m.status().to_string() << log;
+    EXPECT_EQ(m->method, "small (one model)");
+    EXPECT_EQ(m->base_method, "small");
+    EXPECT_EQ(m->rate_scale, scale);
+    EXPECT_EQ(m->train_seconds, 12.5);  // the one training every scale shares
+    EXPECT_EQ(m->size_bytes, sizes[scale]);
+    EXPECT_EQ(m->size_bytes, size_of(at + "/scene.crpgs"));
+    EXPECT_FALSE(m->views.empty());
+  }
+  EXPECT_EQ(read_file_bytes(experiments::rate_scale_dir(run, 1) + "/scene.crpgs").value(),
+            read_file_bytes((dir / "s1.0.crpgs").string()).value());
+  ASSERT_EQ(run_cli("encode '" + run + "' --rate-scales 3", dir / "log.txt", &log), 0) << log;
+  EXPECT_NE(log.find("rate scale 3: done before"), std::string::npos) << log;
+  // One output or many, not both; and one of them.
+  EXPECT_EQ(run_cli("encode '" + run + "' -o x.crpgs --rate-scales 2", dir / "log.txt", &log), 2)
+      << log;
+  EXPECT_EQ(run_cli("encode '" + run + "'", dir / "log.txt", &log), 2) << log;
 
   // Every rate's file, truncated, is refused with a message.
   for (const auto& [scale, size] : sizes) {

@@ -35,6 +35,18 @@ inline std::string write_fake_runner(const std::string& dir) {
   const std::string path = dir + "/fake_train.sh";
   write_text(path, R"sh(#!/bin/bash
 set -eu
+if [ "$1" = encode ]; then  # encode RUN --rate-scales a,b: a smaller fake file per scale
+  run="$2"; scales="$4"
+  [ -n "${FAKE_LOG:-}" ] && echo "encode $run $scales" >> "$FAKE_LOG"
+  for s in ${scales//,/ }; do
+    mkdir -p "$run/rates/scale-$s"
+    awk -v s="$s" -v method="$(sed -n 's/.*"method": "\([^"]*\)".*/\1/p' "$run/metrics.json")" 'BEGIN {
+      size = int(1000000 / s); printf "{\"format\": \"crpgs.run_metrics/1\", \"method\": \"%s (one model)\", ", method;
+      printf "\"lambda\": 0.001, \"size_bytes\": %d, \"psnr_mean\": %.3f, \"rate_scale\": %s, \"base_method\": \"%s\"}\n", size, 30 - s, s, method;
+    }' > "$run/rates/scale-$s/metrics.json"
+  done
+  exit 0
+fi
 cfg=""; out=""; resume=""; method=""
 while [ $# -gt 0 ]; do
   case "$1" in

@@ -191,6 +191,51 @@ TEST(Report, SummaryOverScenesAndSurveyCsvPerScene) {
   EXPECT_NE(md.find("[scene_flower.csv](scene_flower.csv)"), std::string::npos);
 }
 
+// A one-model curve (files re-encoded from crpgs's λ 1e-3 run at scaled steps, in its rates/):
+// its own method after the sweep's, BD against crpgs (its training method, not the scene's
+// first), points labelled by their scale, and left out of the same-λ table.
+TEST(Report, AOneModelCurveIsComparedWithItsOwnMethod) {
+  const std::string runs = make_fixture("one_model");
+  const std::string base = runs + "/fern/crpgs/lambda-2";  // λ 1e-3
+  auto trained = read_run_metrics(base + "/metrics.json");
+  ASSERT_TRUE(trained.ok());
+  for (double scale : {1.0, 2.0, 4.0}) {
+    RunMetrics m = trained.value();
+    m.method = "crpgs (one model)";
+    m.base_method = "crpgs";
+    m.rate_scale = scale;
+    // 1.5x smaller and 1 dB lower per doubling of the scale: worse than training per λ,
+    // whose curve loses 0.6-0.7 dB per 1.6x.
+    m.size_bytes = uint64_t(double(trained->size_bytes) / std::pow(1.5, std::log2(scale)));
+    for (auto& v : m.views) v.psnr -= std::log2(scale);
+    m.psnr_mean = NAN;
+    const std::string dir = base + "/rates/scale-" + std::to_string(int(scale));
+    fs::create_directories(dir);
+    ASSERT_TRUE(write_run_metrics(dir + "/metrics.json", m).ok());
+  }
+  auto collected = collect_runs({runs});
+  ASSERT_TRUE(collected.ok());
+  EXPECT_EQ(collected->runs.front().method, "hac");  // still the first method: the BD anchor
+  EXPECT_EQ(collected->runs.back().method, "crpgs (one model)");
+  ReportOptions opt;
+  opt.plots = false;
+  auto out = write_report({runs}, opt);
+  ASSERT_TRUE(out.ok()) << out.status().message();
+  const std::string md = read_text(out->markdown);
+  EXPECT_NE(md.find("| crpgs (one model) | 0.001 ×2 |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| crpgs | crpgs (one model) | +"), std::string::npos) << md;  // costs size
+  const size_t summary = md.find("## Summary over scenes");
+  const size_t row = md.find("| fern | crpgs (one model) |", summary);
+  ASSERT_NE(row, std::string::npos) << md;
+  const std::string line = md.substr(row, md.find('\n', row) - row);
+  EXPECT_NE(line.find(" | +"), std::string::npos) << line;  // larger than crpgs's curve
+  EXPECT_NE(line.find("(against crpgs)"), std::string::npos) << line;
+  const size_t same = md.find("### Against hac at the same λ");
+  ASSERT_NE(same, std::string::npos) << md;
+  EXPECT_EQ(md.substr(same, md.find("###", same + 4) - same).find("one model"), std::string::npos)
+      << md;
+}
+
 // Runs from several directories (sweeps): the first directory's methods come first, whatever
 // their runs' indices in their own sweeps, so its first method anchors the BD figures.
 TEST(Report, TheFirstDirectorysMethodsComeFirst) {

@@ -26,6 +26,12 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   m.trace_views = {"view_000", "view_008"};
   m.peak_memory_bytes = peak_rss_bytes();
   EXPECT_GT(m.peak_memory_bytes, 0);
+  m.rate_scale = 2.5;
+  m.base_method = "crpgs schedule=fast";
+  m.provenance = this_process_provenance(7, 2, "cpu");
+  EXPECT_FALSE(m.provenance.version.empty());
+  EXPECT_FALSE(m.provenance.commit.empty());
+  EXPECT_GT(m.provenance.cpus, 0);
 
   const std::string dir = std::string(CRPGS_TEST_TMP_DIR) + "/experiments/metrics";
   std::filesystem::create_directories(dir);
@@ -52,6 +58,32 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   EXPECT_DOUBLE_EQ(r.trace[0].seconds, 10.5);
   EXPECT_EQ(r.trace_views, m.trace_views);
   EXPECT_EQ(r.peak_memory_bytes, m.peak_memory_bytes);
+  EXPECT_EQ(r.rate_scale, 2.5);
+  EXPECT_EQ(r.base_method, m.base_method);
+  const Provenance &p = r.provenance, &q = m.provenance;
+  EXPECT_EQ(p.version, q.version);
+  EXPECT_EQ(p.commit, q.commit);
+  EXPECT_EQ(p.libtorch, q.libtorch);
+  EXPECT_EQ(p.cpu, q.cpu);
+  EXPECT_EQ(p.cpus, q.cpus);
+  EXPECT_EQ(p.threads, 2);
+  EXPECT_EQ(p.device, "cpu");
+  EXPECT_EQ(p.seed, 7);
+
+  // A run's own file records neither; a scale must be positive.
+  RunMetrics plain;
+  plain.size_bytes = 1;
+  plain.psnr_mean = 20;
+  const std::string text = to_json(plain);
+  EXPECT_EQ(text.find("rate_scale"), std::string::npos);
+  EXPECT_EQ(text.find("provenance"), std::string::npos);
+  auto back_plain = run_metrics_from_json(text);
+  ASSERT_TRUE(back_plain.ok());
+  EXPECT_TRUE(std::isnan(back_plain->rate_scale));
+  EXPECT_EQ(back_plain->provenance.seed, -1);
+  std::string zero = to_json(m);
+  zero.replace(zero.find("\"rate_scale\": 2.5"), 17, "\"rate_scale\": 0.0");
+  EXPECT_FALSE(run_metrics_from_json(zero).ok());
 }
 
 TEST(RunMetrics, CountsAreUnknownInOlderFilesAndRefusedWhenNotWholeNumbers) {

@@ -260,6 +260,60 @@ struct LocalSweep {
   }
 };
 
+TEST(Sweep, OneModelRunsAreReEncodedAtEachScaleOnce) {
+  LocalSweep s("one_model");
+  const std::string yaml =
+      "output: " + s.dir + "/runs\nconfigs: [" + s.dir +
+      "/a.yaml]\noverrides: {entropy.lambda: [1.0e-4, 1.0e-3]}\n"
+      "datasets: [{name: fern}]\none_model: {rate: 1.0e-3, scales: [1, 2.5]}\n";
+  auto spec = parse_sweep(yaml, "s.yaml");
+  ASSERT_TRUE(spec.ok()) << spec.status().message();
+  EXPECT_EQ(spec->one_model_scales, (std::vector<double>{1, 2.5}));
+  const auto runs = expand_sweep(spec.value());
+  s.opt.one_model_rate = spec->one_model_rate;
+  s.opt.one_model_scales = spec->one_model_scales;
+  auto sum = run_sweep_local(runs, s.opt);
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->succeeded, 2);
+  EXPECT_EQ(sum->failed, 0);
+  const SweepRun& at = runs[1];  // λ 1e-3
+  ASSERT_EQ(at.id, "fern/a/lambda-1.0e-3");
+  for (double v : {1.0, 2.5}) {
+    auto m = read_run_metrics(rate_scale_dir(at.dir, v) + "/metrics.json");
+    ASSERT_TRUE(m.ok()) << m.status().message();
+    EXPECT_EQ(m->rate_scale, v);
+    EXPECT_EQ(m->base_method, at.method);
+  }
+  EXPECT_FALSE(fs::exists(runs[0].dir + "/rates"));  // another λ: not re-encoded
+  auto calls = s.calls();
+  ASSERT_EQ(calls.size(), 3u);
+  EXPECT_EQ(calls.back(), "encode " + at.dir + " 1,2.5");
+  EXPECT_NE(read_text(at.dir + "/stdout.log").find("encode " + at.dir + " --rate-scales 1,2.5"),
+            std::string::npos);
+
+  // Done: nothing runs again; a scale lost is re-encoded (the finished run is not retrained).
+  auto again = run_sweep_local(runs, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(s.calls().size(), 3u);
+  fs::remove_all(rate_scale_dir(at.dir, 2.5));
+  again = run_sweep_local(runs, s.opt);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->skipped, 2);
+  calls = s.calls();
+  ASSERT_EQ(calls.size(), 4u);
+  EXPECT_EQ(calls.back(), "encode " + at.dir + " 1,2.5");
+  EXPECT_TRUE(fs::exists(rate_scale_dir(at.dir, 2.5) + "/metrics.json"));
+
+  for (const char* bad : {"one_model: {rate: 1.0e-3}", "one_model: {rate: 1.0e-3, scales: [0]}",
+                          "one_model: {rate: 1.0e-3, scales: [2], extra: 1}"}) {
+    auto b = parse_sweep(
+        "configs: [a.yaml]\noverrides: {rate.lambda: [1.0e-3]}\n" + std::string(bad) + "\n",
+        "bad.yaml");
+    ASSERT_FALSE(b.ok()) << bad;
+    EXPECT_NE(b.status().message().find("one_model"), std::string::npos) << b.status().message();
+  }
+}
+
 TEST(Sweep, LocalRunSkipsFinishedRunsAndRerunsACrashedOne) {
   LocalSweep s("local");
   setenv("FAKE_CRASH", "fern/b/lambda-1.0e-3", 1);

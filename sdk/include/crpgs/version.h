@@ -17,6 +17,8 @@ namespace crpgs {
 /// Compiled-in features and toolchain, e.g. for `crpgs --version`.
 struct BuildInfo {
   const char* version;
+  const char*
+      git_commit;  ///< `git describe --always --dirty` of the sources; "unknown" outside git
   const char* compiler;
   const char* torch_version;
   bool cuda;

@@ -12,6 +12,7 @@
 
 #include "core/text_list.h"
 #include "crpgs/plugin.h"
+#include "crpgs_git_commit.h"
 
 namespace crpgs {
 namespace fs = std::filesystem;
@@ -262,6 +263,7 @@ std::vector<std::string> default_plugin_dirs(const std::vector<std::string>& plu
 namespace crpgs {
 BuildInfo build_info() {
   const crpgs_build_info b = host_build_info();
-  return BuildInfo{CRPGS_VERSION_STRING, b.compiler, b.torch_version, b.cuda != 0};
+  return BuildInfo{CRPGS_VERSION_STRING, CRPGS_GIT_COMMIT, b.compiler, b.torch_version,
+                   b.cuda != 0};
 }
 }  // namespace crpgs

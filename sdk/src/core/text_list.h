@@ -1,12 +1,21 @@
 /// @file text_list.h
-/// @brief Lists of names in messages: "a, b, c", and the nearest valid name to a misspelt one.
+/// @brief Lists of names in messages: "a, b, c", and the nearest valid name to a misspelt one;
+/// numbers as %g writes them.
 #pragma once
 
 #include <algorithm>
+#include <cstdio>
 #include <string>
 #include <vector>
 
 namespace crpgs {
+
+/// A number as printf's %g writes it ("0.001", "1.5", "1e-05").
+inline std::string g_text(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
 
 inline std::string join(const std::vector<std::string>& items, const char* sep = ", ") {
   std::string out;

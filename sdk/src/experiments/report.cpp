@@ -34,10 +34,14 @@ std::string fmt(const char* f, double v) {
 constexpr double kMiB = 1048576.0;
 
 std::string rate_text(double r) {
-  if (!std::isfinite(r)) return "—";
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", r);
-  return buf;
+  return std::isfinite(r) ? g_text(r) : "—";
+}
+
+/// λ of a point, with the step scale of a re-encoded one ("0.001 ×2").
+std::string rate_text(const ReportRun& r) {
+  std::string t = rate_text(r.rate);
+  if (std::isfinite(r.metrics.rate_scale)) t += " ×" + g_text(r.metrics.rate_scale);
+  return t;
 }
 
 std::string mib(double bytes) {
@@ -282,8 +286,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
           text += nan_text(t.seconds) + " " + std::to_string(t.iteration) + " " + nan_text(t.psnr) +
                   "\n";
         const std::string f = p.data(ds + "_trace" + std::to_string(k++) + ".dat", text);
-        const std::string label =
-            method + (std::isfinite(r->rate) ? " λ=" + rate_text(r->rate) : "");
+        const std::string label = method + (std::isfinite(r->rate) ? " λ=" + rate_text(*r) : "");
         plot_list += (plot_list.empty() ? "" : ", ") + gp_quote(f) +
                      " using 1:3 with lines lw 2 title " + gp_quote(label);
       }
@@ -339,7 +342,7 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
       for (auto v : r->metrics.breakdown) total += v;
       if (total == 0) continue;
       any = true;
-      std::string label = std::isfinite(r->rate) ? "λ=" + rate_text(r->rate)
+      std::string label = std::isfinite(r->rate) ? "λ=" + rate_text(*r)
                                                  : fmt("%.2fMiB", r->metrics.size_bytes / kMiB);
       text += gp_quote(label);
       for (auto v : r->metrics.breakdown) text += " " + std::to_string(100.0 * v / total);
@@ -359,6 +362,14 @@ void plots_for_group(Plotter& p, const Group& g, FileNames& datasets, FileNames&
   }
 }
 
+/// What a curve is compared with: a re-encoded curve's own training method where the scene has
+/// it (one model against models trained per λ), else the scene's first method.
+const std::string& reference_method(const Group& g, const std::string& method) {
+  const std::string& base = g.by_method.at(method).front()->metrics.base_method;
+  const auto it = std::find(g.methods.begin(), g.methods.end(), base);
+  return base.empty() || it == g.methods.end() ? g.methods[0] : *it;
+}
+
 /// The summary over scenes, as the paper's table: per scene and method the low- and high-rate
 /// points (the smallest and the largest file) and the BD figures against the scene's first
 /// method (the sweep's first config), then each method's mean BD over the scenes that have one.
@@ -369,8 +380,8 @@ Table summary_table(const std::vector<Group>& groups) {
   std::vector<std::string> methods;  // first-seen order over all scenes
   std::map<std::string, std::vector<double>> rates, psnrs;
   for (const auto& g : groups) {
-    const auto anchor = rd_points(g.by_method.at(g.methods[0]));
     for (const auto& method : g.methods) {
+      const std::string& reference = reference_method(g, method);
       const auto& runs = g.by_method.at(method);
       const auto &lo = runs.front()->metrics, &hi = runs.back()->metrics;
       std::vector<std::string> row = {g.dataset,
@@ -381,11 +392,12 @@ Table summary_table(const std::vector<Group>& groups) {
                                       mib(hi.size_bytes),
                                       fmt("%.3f", hi.psnr_mean),
                                       fmt("%.4f", hi.ssim_mean)};
-      if (method == g.methods[0]) {
+      if (method == reference) {
         row.insert(row.end(), {"anchor", "", ""});
       } else {
         if (std::find(methods.begin(), methods.end(), method) == methods.end())
           methods.push_back(method);
+        const auto anchor = rd_points(g.by_method.at(reference));
         const auto test = rd_points(runs);
         const auto rate = bd_rate_figure(anchor, test);
         const auto psnr = bd_psnr_figure(anchor, test);
@@ -397,6 +409,7 @@ Table summary_table(const std::vector<Group>& groups) {
                                  std::to_string(rate->test_points) + " points, " +
                                  fmt("%.3f", rate->lo) + "–" + fmt("%.3f dB", rate->hi)
                            : front_text(anchor) + " / " + front_text(test));
+        if (reference != g.methods[0]) row.back() += " (against " + reference + ")";
       }
       t.push_back(row);
     }
@@ -431,7 +444,7 @@ std::string survey_csv(const Group& g) {
     for (const auto* r : g.by_method.at(method)) {
       const auto& m = r->metrics;
       const std::string name =
-          method + (std::isfinite(r->rate) ? " lambda=" + rate_text(r->rate) : std::string());
+          method + (std::isfinite(r->rate) ? " lambda=" + rate_text(*r) : std::string());
       csv += csv_field(name) + "," + fmt("%.3f", m.psnr_mean) + "," + fmt("%.4f", m.ssim_mean) +
              ",," + std::to_string(m.size_bytes) + "," +
              (m.gaussians >= 0 ? std::to_string(m.gaussians) : std::string()) + "\n";
@@ -548,6 +561,9 @@ StatusOr<CollectedRuns> collect_runs(const std::vector<std::string>& runs_dirs,
       auto m = read_run_metrics(dir + "/metrics.json");
       const bool finished = m.ok() && !run_marked_started(dir);
       if (finished) {
+        // A re-encoded file (`crpgs encode --rate-scales`) after its runs directory's runs:
+        // its curve never becomes a scene's first method, the BD anchor.
+        if (std::isfinite(m->rate_scale)) r.order += kRunsPerDirectory - 1;
         r.metrics = std::move(m).value();
         r.method = r.metrics.method;
         r.dataset = r.metrics.dataset;
@@ -679,8 +695,10 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
     const Table t = summary_table(compared);
     const std::string note =
         "Low and high rate: each method's smallest and largest file on the scene. BD figures "
-        "against the scene's first method (the sweep's first config), over the non-dominated "
-        "points of both curves (anchor/test) and their common PSNR interval; the mean row "
+        "against the scene's first method (the sweep's first config; a one-model curve, "
+        "re-encoded from one trained run at scaled steps, against its own method's per-λ "
+        "curve), over the non-dominated points of both curves (anchor/test) and their common "
+        "PSNR interval; the mean row "
         "averages the scenes that have a figure. Sizes in MiB (2^20 bytes, the field's \"MB\").";
     md += "## Summary over scenes\n\n" + note + "\n\n" + md_table(t);
     html_body += "<h2>Summary over scenes</h2>\n<p>" + html_escape(note) + "</p>\n" + html_table(t);
@@ -704,7 +722,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
       for (const auto* r : g.by_method.at(method)) {
         const auto& m = r->metrics;
         rd.push_back(
-            {method, rate_text(r->rate), std::to_string(m.size_bytes), mib(m.size_bytes),
+            {method, rate_text(*r), std::to_string(m.size_bytes), mib(m.size_bytes),
              fmt("%.3f", m.psnr_mean), fmt("%.4f", m.ssim_mean), count_text(m.anchors),
              count_text(m.gaussians), fmt("%.1f", m.train_seconds), fmt("%.3f", m.encode_seconds),
              fmt("%.3f", m.decode_seconds), fmt("%.2f", m.render_seconds_per_view * 1e3),
@@ -741,6 +759,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
                      "ΔPSNR (dB)", "SSIM"}};
       for (size_t t = 1; t < g.methods.size(); ++t)
         for (const auto* r : g.by_method.at(g.methods[t])) {
+          if (std::isfinite(r->metrics.rate_scale)) continue;  // one λ, many points
           const auto& by_base = g.by_method.at(base);
           const auto b = std::find_if(by_base.begin(), by_base.end(), [&](const ReportRun* x) {
             return std::abs(x->rate - r->rate) <= 1e-9 * std::max(std::abs(x->rate), 1e-30);
@@ -748,7 +767,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
           if (b == by_base.end()) continue;
           const auto &m = r->metrics, &mb = (*b)->metrics;
           same.push_back(
-              {g.methods[t], rate_text(r->rate), mib(m.size_bytes),
+              {g.methods[t], rate_text(*r), mib(m.size_bytes),
                mb.size_bytes > 0
                    ? fmt("%+.2f", 100.0 * (double(m.size_bytes) / double(mb.size_bytes) - 1))
                    : "—",
@@ -774,7 +793,7 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
         if (!(dp > 0)) continue;  // a dominated step costs without gaining
         const double k = 0.1 / dp;
         cost.push_back(
-            {method, rate_text(runs[i - 1]->rate), rate_text(runs[i]->rate), fmt("%+.3f", dp),
+            {method, rate_text(*runs[i - 1]), rate_text(*runs[i]), fmt("%+.3f", dp),
              fmt("%+.1f", k * (double(b.size_bytes) - double(a.size_bytes)) / 1024.0),
              fmt("%+.1f", k * (b.train_seconds - a.train_seconds)),
              fmt("%+.3f", k * (b.decode_seconds - a.decode_seconds)),

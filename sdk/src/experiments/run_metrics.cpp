@@ -5,9 +5,12 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <thread>
 
 #include "core/time_text.h"
 #include "crpgs/atomic_file.h"
+#include "crpgs/version.h"
 #include "io/json.h"
 #include "io/json_writer.h"
 
@@ -55,6 +58,26 @@ int64_t peak_rss_bytes() {
   rusage ru{};
   if (getrusage(RUSAGE_SELF, &ru) != 0) return 0;
   return static_cast<int64_t>(ru.ru_maxrss) * 1024;  // Linux reports KiB
+}
+
+Provenance this_process_provenance(int64_t seed, int threads, const std::string& device) {
+  const BuildInfo b = build_info();
+  Provenance p;
+  p.version = b.version;
+  p.commit = b.git_commit;
+  p.libtorch = b.torch_version;
+  std::ifstream cpuinfo("/proc/cpuinfo");
+  for (std::string line; std::getline(cpuinfo, line);)
+    if (line.rfind("model name", 0) == 0 && line.find(':') != std::string::npos) {
+      p.cpu = line.substr(line.find(':') + 1);
+      p.cpu.erase(0, p.cpu.find_first_not_of(' '));
+      break;
+    }
+  p.cpus = int(std::thread::hardware_concurrency());
+  p.threads = threads;
+  p.device = device;
+  p.seed = seed;
+  return p;
 }
 
 void fill_means(RunMetrics& m) {
@@ -112,6 +135,22 @@ std::string to_json(const RunMetrics& in) {
   w.key("trace_views").begin_array();
   for (const auto& v : m.trace_views) w.raw(io::json_quote(v));
   w.end_array();
+  if (!std::isnan(m.rate_scale)) {
+    w.key("rate_scale").value(m.rate_scale);
+    w.key("base_method").value(m.base_method);
+  }
+  if (const Provenance& p = m.provenance; !p.version.empty()) {
+    w.key("provenance").begin_object();
+    w.key("crpgs").value(p.version);
+    w.key("commit").value(p.commit);
+    w.key("libtorch").value(p.libtorch);
+    w.key("cpu").value(p.cpu);
+    w.key("cpus").value(int64_t(p.cpus));
+    w.key("threads").value(int64_t(p.threads));
+    w.key("device").value(p.device);
+    w.key("seed").value(p.seed);
+    w.end_object();
+  }
   w.end_object();
   return w.str();
 }
@@ -174,6 +213,23 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
         return Status(StatusCode::kInvalidArgument, "metrics: trace_views must be view names");
       m.trace_views.push_back(v.string);
     }
+  if (doc.find("rate_scale")) {
+    m.rate_scale = num(doc, "rate_scale");
+    m.base_method = str(doc, "base_method");
+    if (!(m.rate_scale > 0))
+      return Status(StatusCode::kInvalidArgument, "metrics: \"rate_scale\" must be > 0");
+  }
+  if (const JsonValue* p = doc.find("provenance"); p && p->is_object()) {
+    Provenance& v = m.provenance;
+    v.version = str(*p, "crpgs");
+    v.commit = str(*p, "commit");
+    v.libtorch = str(*p, "libtorch");
+    v.cpu = str(*p, "cpu");
+    v.device = str(*p, "device");
+    for (auto [key, out] : {std::pair<const char*, int*>{"cpus", &v.cpus}, {"threads", &v.threads}})
+      if (const double x = num(*p, key); x >= 0 && x < 1e6) *out = int(x);
+    if (const double x = num(*p, "seed"); x >= 0 && x < 9e15) v.seed = int64_t(x);
+  }
   if (m.trace_views.empty() && !m.trace.empty() && !m.views.empty())
     m.trace_views = {m.views.front().name};
   fill_means(m);

@@ -91,9 +91,9 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
     return bad(name, std::string("YAML error: ") + e.what());
   }
   if (!root.IsMap()) return bad(name, "a sweep file is a YAML map");
-  static const std::vector<std::string> kKeys = {"name",      "output",   "configs",
-                                                 "overrides", "rate_key", "datasets",
-                                                 "resources", "workers",  "share_prefix"};
+  static const std::vector<std::string> kKeys = {
+      "name",     "output",    "configs", "overrides",    "rate_key",
+      "datasets", "resources", "workers", "share_prefix", "one_model"};
   SweepSpec s;
   s.file = name;
   try {
@@ -178,6 +178,20 @@ StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text_in, const std::stri
     }
     if (root["workers"]) s.workers = root["workers"].as<int>();
     if (root["share_prefix"]) s.share_prefix = root["share_prefix"].as<bool>();
+    if (const YAML::Node o = root["one_model"]) {
+      if (!o.IsMap() || !o["rate"] || !o["scales"] || !o["scales"].IsSequence() ||
+          o["scales"].size() == 0 || o.size() != 2)
+        return bad(name,
+                   "'one_model' is {rate: R, scales: [S, ...]}: the runs at rate_key R "
+                   "re-encoded at each step scale S");
+      s.one_model_rate = o["rate"].as<double>();
+      for (const auto& v : o["scales"]) s.one_model_scales.push_back(v.as<double>());
+      for (double v : s.one_model_scales)
+        if (!(v > 0) || !std::isfinite(v))
+          return bad(name, "'one_model.scales' must be positive numbers");
+      if (s.rate_key.empty())
+        return bad(name, "'one_model' needs a rate_key (the runs' λ it picks R from)");
+    }
   } catch (const YAML::Exception& e) {
     return bad(name, std::string("bad value: ") + e.what());
   }
@@ -205,6 +219,10 @@ StatusOr<SweepSpec> load_sweep(const std::string& path) {
 
 std::string sweep_prefix_dir(const std::string& runs_dir) {
   return (fs::path(runs_dir) / "prefixes").string();
+}
+
+std::string rate_scale_dir(const std::string& run_dir, double scale) {
+  return (fs::path(run_dir) / "rates" / ("scale-" + g_text(scale))).string();
 }
 
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir_in) {
@@ -389,7 +407,81 @@ namespace {
 struct Active {
   pid_t pid;
   const SweepRun* run;
+  bool rates = false;  ///< `encode --rate-scales` of a finished run, not its training
 };
+
+/// A finished run the sweep should re-encode at the one-model scales and that lacks some.
+bool wants_rates(const SweepRun& r, const ExecOptions& opt) {
+  if (opt.one_model_scales.empty() || !std::isfinite(r.rate) ||
+      std::abs(r.rate - opt.one_model_rate) > 1e-9 * std::abs(opt.one_model_rate))
+    return false;
+  return std::any_of(opt.one_model_scales.begin(), opt.one_model_scales.end(), [&](double s) {
+    return !read_run_metrics(rate_scale_dir(r.dir, s) + "/metrics.json").ok();
+  });
+}
+
+/// Starts `args` (args[0]: the executable) with stdin from /dev/null and stdout and stderr
+/// appended to `dir`'s logs after a line naming the command. `lock`, when held, is handed to the
+/// child (which keeps the directory locked until it exits).
+StatusOr<pid_t> spawn_logged(const std::string& dir, std::vector<std::string> args,
+                             const DirectoryLock* lock) {
+  const std::string header = "== " + local_time_text() + " " + [&] {
+    std::string cmd;
+    for (const auto& a : args)  // quoted where needed, so the line can be pasted into a shell
+      cmd += (cmd.empty() ? "" : " ") +
+             (a.find_first_of(" '\"$\\*?;&|<>()") != std::string::npos ? shell_quote(a) : a);
+    return cmd;
+  }() + "\n";
+  for (const char* log : {"/stdout.log", "/stderr.log"}) {
+    FILE* f = std::fopen((dir + log).c_str(), "a");
+    if (!f) return Status(StatusCode::kInternal, "cannot open " + dir + log);
+    std::fputs(header.c_str(), f);
+    std::fclose(f);
+  }
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
+  const std::string out = dir + "/stdout.log", err = dir + "/stderr.log";
+  posix_spawn_file_actions_addopen(&fa, 1, out.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
+  posix_spawn_file_actions_addopen(&fa, 2, err.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
+  const bool hand_over = lock && lock->held();
+  std::vector<std::string> env;
+  if (hand_over) {
+    const int child_fd = lock->fd() == 200 ? 201 : 200;  // a dup2 onto itself would keep CLOEXEC
+    posix_spawn_file_actions_adddup2(&fa, lock->fd(), child_fd);
+    const std::string handed = DirectoryLock::child_environment(child_fd);
+    const std::string name = handed.substr(0, handed.find('=') + 1);
+    for (char** e = environ; *e; ++e)
+      if (std::string_view(*e).substr(0, name.size()) != name) env.emplace_back(*e);
+    env.push_back(handed);
+  }
+  std::vector<char*> argv, envp;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  for (auto& e : env) envp.push_back(e.data());
+  envp.push_back(nullptr);
+  pid_t pid = 0;
+  const int rc = posix_spawn(&pid, args[0].c_str(), &fa, nullptr, argv.data(),
+                             hand_over ? envp.data() : environ);
+  posix_spawn_file_actions_destroy(&fa);
+  if (rc != 0)
+    return Status(StatusCode::kInternal, "cannot start " + args[0] + ": " + std::strerror(rc));
+  return pid;
+}
+
+/// Starts `runner encode RUN --rate-scales ...` on a finished run, with the directory locked;
+/// 0 when another process holds it.
+StatusOr<pid_t> launch_rates(const SweepRun& run, const ExecOptions& opt) {
+  auto lock = lock_directory(run.dir);
+  if (!lock.ok()) {
+    if (directory_lock_holder(run.dir).empty()) return lock.status();
+    return 0;
+  }
+  std::string scales;
+  for (double v : opt.one_model_scales) scales += (scales.empty() ? "" : ",") + g_text(v);
+  return spawn_logged(run.dir, {opt.runner, "encode", run.dir, "--rate-scales", scales},
+                      &lock.value());
+}
 
 /// Prepares the directory and starts `runner train ...` with the logs appended. Returns 0 with
 /// `*skipped` saying why when, since the sweep's first look, the run was finished or another
@@ -424,48 +516,8 @@ StatusOr<pid_t> launch(const SweepRun& run, const ExecOptions& opt, std::string*
   // there goes.
   args.push_back(resume ? "--resume" : "--force");
   if (!opt.prefix_dir.empty()) args.insert(args.end(), {"--share-prefix", opt.prefix_dir});
-  const std::string header = "== " + local_time_text() + " " + [&] {
-    std::string cmd;
-    for (const auto& a : args)  // quoted where needed, so the line can be pasted into a shell
-      cmd += (cmd.empty() ? "" : " ") +
-             (a.find_first_of(" '\"$\\*?;&|<>()") != std::string::npos ? shell_quote(a) : a);
-    return cmd;
-  }() + "\n";
-  for (const char* log : {"/stdout.log", "/stderr.log"}) {
-    FILE* f = std::fopen((run.dir + log).c_str(), "a");
-    if (!f) return Status(StatusCode::kInternal, "cannot open " + run.dir + log);
-    std::fputs(header.c_str(), f);
-    std::fclose(f);
-  }
-  posix_spawn_file_actions_t fa;
-  posix_spawn_file_actions_init(&fa);
-  posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
-  const std::string out = run.dir + "/stdout.log", err = run.dir + "/stderr.log";
-  posix_spawn_file_actions_addopen(&fa, 1, out.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
-  posix_spawn_file_actions_addopen(&fa, 2, err.c_str(), O_WRONLY | O_APPEND | O_CREAT, 0644);
-  std::vector<std::string> env;
-  if (lock->held()) {
-    const int child_fd = lock->fd() == 200 ? 201 : 200;  // a dup2 onto itself would keep CLOEXEC
-    posix_spawn_file_actions_adddup2(&fa, lock->fd(), child_fd);
-    const std::string handed = DirectoryLock::child_environment(child_fd);
-    const std::string name = handed.substr(0, handed.find('=') + 1);
-    for (char** e = environ; *e; ++e)
-      if (std::string_view(*e).substr(0, name.size()) != name) env.emplace_back(*e);
-    env.push_back(handed);
-  }
-  std::vector<char*> argv, envp;
-  for (auto& a : args) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  for (auto& e : env) envp.push_back(e.data());
-  envp.push_back(nullptr);
-  pid_t pid = 0;
-  const int rc = posix_spawn(&pid, opt.runner.c_str(), &fa, nullptr, argv.data(),
-                             lock->held() ? envp.data() : environ);
-  posix_spawn_file_actions_destroy(&fa);
-  if (rc != 0) {
-    mark_run_finished(run.dir);  // nothing ran: back to pending
-    return Status(StatusCode::kInternal, "cannot start " + opt.runner + ": " + std::strerror(rc));
-  }
+  auto pid = spawn_logged(run.dir, args, &lock.value());
+  if (!pid.ok()) mark_run_finished(run.dir);  // nothing ran: back to pending
   return pid;
 }
 
@@ -519,6 +571,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     return Status(StatusCode::kInvalidArgument, "sweep: no runner executable");
   SweepSummary sum;
   sum.total = static_cast<int>(runs.size());
+  std::vector<const SweepRun*> rates_todo;  // finished runs to re-encode (one_model)
   const std::string n = std::to_string(opt.sweep_size > 0 ? size_t(opt.sweep_size) : runs.size());
   std::vector<const SweepRun*> todo;
   for (const auto& r : runs) {
@@ -530,6 +583,10 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       log(tag + (change.empty() ? ": done, skipped"
                                 : ": done, but the sweep now asks for another config (" + change +
                                       "); kept: delete " + r.dir + " to rerun it"));
+      if (wants_rates(r, opt)) {
+        if (opt.dry_run) log(tag + ": would re-encode at the one-model rate scales");
+        rates_todo.push_back(&r);
+      }
     } else if (const std::string holder = directory_lock_holder(r.dir); !holder.empty()) {
       ++sum.skipped;  // another sweep or `crpgs train` is on it
       log(tag + ": running in another process (" + holder + "), skipped");
@@ -569,11 +626,28 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
 
   const size_t workers = static_cast<size_t>(std::max(1, opt.workers));
   bool stopping = false;
-  while ((!todo.empty() && !stopping) || !active.empty()) {
+  while (((!todo.empty() || !rates_todo.empty()) && !stopping) || !active.empty()) {
     if (!stopping && opt.stop && opt.stop->load()) {
       stopping = true;
       log("stopping: no further runs start; the running ones checkpoint and stop");
       for (const Active& a : active) kill(a.pid, SIGTERM);
+    }
+    // Re-encodings first: minutes each, and they finish a curve.
+    while (!stopping && !rates_todo.empty() && active.size() < workers) {
+      const SweepRun& r = *rates_todo.front();
+      rates_todo.erase(rates_todo.begin());
+      const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+      auto pid = launch_rates(r, opt);
+      if (!pid.ok()) {
+        ++sum.failed;
+        sum.failed_ids.push_back(r.id + " (one-model rates)");
+        log(tag + ": cannot re-encode: " + pid.status().message());
+      } else if (pid.value() == 0) {
+        log(tag + ": in use by another process; not re-encoded now");
+      } else {
+        log(tag + ": re-encoding at the one-model rate scales (RUN/rates/)");
+        active.push_back({pid.value(), &r, true});
+      }
     }
     while (!stopping && !todo.empty() && active.size() < workers) {
       const SweepRun& r = *pick();
@@ -611,9 +685,22 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       continue;
     }
     const SweepRun& r = *it->run;
+    const bool rates = it->rates;
     active.erase(it);
     const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
     const bool exited_ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    if (rates) {
+      if (exited_ok && !wants_rates(r, opt)) {
+        log(tag + ": one-model rates done (" + rate_scale_dir(r.dir, opt.one_model_scales[0]) +
+            ", ...)");
+      } else if (!(stopping || (opt.stop && opt.stop->load()))) {
+        ++sum.failed;
+        sum.failed_ids.push_back(r.id + " (one-model rates)");
+        log(tag + ": one-model re-encoding FAILED (" + exit_text(status) + "); see " + r.dir +
+            "/stderr.log");
+      }
+      continue;
+    }
     auto metrics = read_run_metrics(r.dir + "/metrics.json");
     std::error_code ec;
     if (exited_ok && metrics.ok()) {
@@ -623,6 +710,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       std::snprintf(buf, sizeof buf, ": done (%.3f dB, %llu bytes)", metrics->psnr_mean,
                     static_cast<unsigned long long>(metrics->size_bytes));
       log(tag + buf);
+      if (wants_rates(r, opt)) rates_todo.push_back(&r);
     } else if (stopping || (opt.stop && opt.stop->load())) {
       ++sum.interrupted;  // .running stays: the next `crpgs sweep` resumes it
       log(tag + ": stopped (" + exit_text(status) + "); the next `crpgs sweep` resumes it");

@@ -50,6 +50,21 @@ struct TracePoint {
   double psnr = 0;  ///< dB, mean over RunMetrics::trace_views, 8-bit round trip
 };
 
+/// Where a result came from, for its record to be rerun and compared.
+struct Provenance {
+  std::string version;  ///< crpgs version, e.g. "0.1.0"; empty: not recorded (older runs)
+  std::string commit;   ///< git commit of the sources the binary was built from
+  std::string libtorch;
+  std::string cpu;     ///< CPU model (/proc/cpuinfo "model name")
+  int cpus = -1;       ///< logical CPUs of the machine
+  int threads = -1;    ///< compute threads of the run (train.threads as resolved)
+  std::string device;  ///< where the model trained: "cpu" or "cuda"
+  int64_t seed = -1;
+};
+
+/// This process's version, commit, libtorch and machine, with the run's seed, threads, device.
+Provenance this_process_provenance(int64_t seed, int threads, const std::string& device);
+
 struct RunMetrics {
   std::string method;       ///< e.g. "hac", "crpgs" (the sweep's run.json may relabel it)
   std::string dataset;      ///< e.g. "fern"
@@ -77,6 +92,12 @@ struct RunMetrics {
   /// recorded traced the first test view alone: read as views[0]'s name.
   std::vector<std::string> trace_views;
   int64_t peak_memory_bytes = 0;  ///< peak resident set size, see peak_rss_bytes()
+  /// A file re-encoded from another run's trained model with every quantisation step scaled
+  /// (`crpgs encode --rate-scales`, "one model, many rates"): the scale and that run's method.
+  /// NaN and "" for a run's own bitstream.
+  double rate_scale = NAN;
+  std::string base_method;
+  Provenance provenance;
 };
 
 /// What a PSNR trace of these test views measures: "test view NAME" or "mean of N test views".

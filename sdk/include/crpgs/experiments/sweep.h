@@ -22,6 +22,10 @@
 ///   share_prefix: true              # default; runs that differ only in the rate weights
 ///                                   # (or thread counts) share their training up to
 ///                                   # rate_start (RUNS/prefixes, see crpgs/shared_prefix.h)
+///   one_model: {rate: 1.0e-3, scales: [1, 1.5, 2, 3]}   # each finished run at this rate is
+///                                   # re-encoded at these step scales (`crpgs encode
+///                                   # --rate-scales`, RUN/rates/): a "one model, many rates"
+///                                   # curve that `crpgs report` draws beside the per-λ ones
 #pragma once
 
 #include <atomic>
@@ -70,6 +74,8 @@ struct SweepSpec {
   SweepResources resources;
   int workers = 1;
   bool share_prefix = true;
+  double one_model_rate = NAN;           ///< one_model.rate; NaN: no one-model curves
+  std::vector<double> one_model_scales;  ///< one_model.scales
 };
 
 StatusOr<SweepSpec> parse_sweep(const std::string& yaml_text, const std::string& name);
@@ -135,7 +141,15 @@ struct ExecOptions {
   /// Passed to each run as `--share-prefix`; "" = off. With it, the next run to start is chosen
   /// to share most (next_run_to_start).
   std::string prefix_dir;
+  /// One-model curves (SweepSpec::one_model_*): each finished run whose rate is
+  /// one_model_rate is then re-encoded, `runner encode RUN --rate-scales ...`, as a job of its
+  /// own (logs appended to the run's).
+  double one_model_rate = NAN;
+  std::vector<double> one_model_scales;
 };
+
+/// RUN/rates/scale-<s>: where `crpgs encode RUN --rate-scales` writes scale s.
+std::string rate_scale_dir(const std::string& run_dir, double scale);
 
 /// What a waiting run needs from the shared prefixes.
 struct PendingRun {
