@@ -625,6 +625,9 @@ TEST(Sweep, NextRunStartsAPrefixEarlyThenUsesThem) {
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", true}}, {}, is_published), 1u);
   EXPECT_EQ(next_run_to_start({{"H", false}, {"C", true}}, {}, is_published), 1u);
   EXPECT_EQ(next_run_to_start({{"H", false}, {"C", true}}, {"C"}, is_published), 0u);
+  // A stopped H past H's published prefix resumes before a fresh H and a fresh C's prefix: the
+  // nearest result.
+  EXPECT_EQ(next_run_to_start({{"H", false}, {"C", false}, {"H", true}}, {}, is_published), 2u);
   published.clear();
   EXPECT_EQ(next_run_to_start({{"C", false}, {"C", false}}, {"C"}, is_published), 0u);
 }

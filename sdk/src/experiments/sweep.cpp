@@ -533,14 +533,19 @@ size_t next_run_to_start(const std::vector<PendingRun>& pending,
                          const std::vector<std::string>& running,
                          const std::function<bool(const std::string&)>& published) {
   // Runs that compute a prefix others wait for: first a stopped one of a group whose prefix is
-  // not published and that has no running run (it may be on its way to rate_start), then the
-  // first of a group nobody has started.
+  // not published and that has no running run (it may be on its way to rate_start); then any
+  // other stopped run past its group's prefix; then the first of a group nobody has started.
   auto needed = [&](const PendingRun& p) {
     return !p.prefix_key.empty() && !published(p.prefix_key) &&
            std::find(running.begin(), running.end(), p.prefix_key) == running.end();
   };
   for (size_t i = 0; i < pending.size(); ++i)
     if (pending[i].has_checkpoint && needed(pending[i])) return i;
+  // Then a stopped run that needs no prefix computed: its result is the nearest.
+  for (size_t i = 0; i < pending.size(); ++i)
+    if (pending[i].has_checkpoint &&
+        (pending[i].prefix_key.empty() || published(pending[i].prefix_key)))
+      return i;
   for (size_t i = 0; i < pending.size(); ++i)
     if (needed(pending[i]) &&
         std::none_of(pending.begin(), pending.end(), [&](const PendingRun& q) {
