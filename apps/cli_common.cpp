@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <thread>
 
@@ -31,18 +32,25 @@ StatusOr<Config> load_config(const std::string& path, const GlobalOptions& g,
 }
 
 void print_eval(const EvalResult& r) {
+  const bool lpips = std::isfinite(r.mean_lpips);
   std::vector<std::vector<std::string>> rows = {{"VIEW", "PSNR (dB)", "SSIM"}};
-  char a[32], b[32];
-  for (const auto& v : r.views) {
-    std::snprintf(a, sizeof a, "%.3f", v.psnr);
-    std::snprintf(b, sizeof b, "%.4f", v.ssim);
-    rows.push_back({v.name, a, b});
-  }
-  std::snprintf(a, sizeof a, "%.3f", r.mean_psnr);
-  std::snprintf(b, sizeof b, "%.4f", r.mean_ssim);
-  rows.push_back({"mean", a, b});
+  if (lpips) rows[0].push_back("LPIPS");
+  char a[32], b[32], c[32];
+  auto row = [&](const std::string& name, double psnr, double ssim, double lp) {
+    std::snprintf(a, sizeof a, "%.3f", psnr);
+    std::snprintf(b, sizeof b, "%.4f", ssim);
+    std::snprintf(c, sizeof c, "%.4f", lp);
+    rows.push_back({name, a, b});
+    if (lpips) rows.back().push_back(c);
+  };
+  for (const auto& v : r.views) row(v.name, v.psnr, v.ssim, v.lpips);
+  row("mean", r.mean_psnr, r.mean_ssim, r.mean_lpips);
   print_table(rows);
   std::printf("render time: %.1f ms/view\n", r.seconds_per_view * 1e3);
+  if (!lpips)
+    std::printf(
+        "LPIPS: not computed (its VGG weights are not shipped: --lpips-weights FILE with "
+        "a TorchScript module you export, docs/lpips.md)\n");
 }
 
 void print_table(const std::vector<std::vector<std::string>>& rows, FILE* out) {

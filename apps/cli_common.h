@@ -139,8 +139,8 @@ void print_bitstream_report(const BitstreamReport& r);
 /// anchors and Gaussians, codec times, the decoded model's test views.
 experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config);
 /// `crpgs eval FILE.crpgs`: decode, then evaluate on the test views of the dataset in its config.
-int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
-                        const std::string& png_dir);
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir,
+                        const Lpips* lpips);
 
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);

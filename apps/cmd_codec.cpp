@@ -357,15 +357,16 @@ int encode_rates(const GlobalOptions& g, const std::string& run_dir,
   return 0;
 }
 
-/// Decodes a bitstream (or loads a decode directory) and evaluates it on the test views of the
-/// dataset its config names.
-int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::string& png_dir) {
+}  // namespace
+
+int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir,
+                        const Lpips* lpips) {
   ComponentRegistry r = load_registry(g);
   // The dataset (and rasterizer) as the config that trained this model set them up.
   auto src = load_model_source(g, r, path, 0);
   if (!src.ok()) return report_error(src.status());
-  auto ev =
-      evaluate_views(src->model(), src->setup->rasterizer(), src->setup->dataset().test, png_dir);
+  auto ev = evaluate_views(src->model(), src->setup->rasterizer(), src->setup->dataset().test,
+                           png_dir, lpips);
   if (!ev.ok()) return report_error(ev.status());
   if (src->kind == "bitstream")
     std::printf("%s: %llu bytes, %lld anchors, decoded in %.2f s\n", path.c_str(),
@@ -376,14 +377,6 @@ int eval_bitstream(const GlobalOptions& g, const std::string& path, const std::s
                 static_cast<long long>(src->model().num_anchors()), src->load_seconds);
   print_eval(ev.value());
   return 0;
-}
-
-}  // namespace
-
-/// `crpgs eval` on a file: used by cmd_train's eval when its argument is a bitstream.
-int eval_bitstream_file(const GlobalOptions& g, const std::string& path,
-                        const std::string& png_dir) {
-  return eval_bitstream(g, path, png_dir);
 }
 
 void add_codec_commands(CLI::App& app, GlobalOptions& g) {

@@ -12,6 +12,7 @@
 #include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/hashing.h"
+#include "crpgs/lpips.h"
 #include "crpgs/runtime.h"
 #include "crpgs/trainer.h"
 #include "progress_bar.h"
@@ -181,14 +182,14 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (t.model().has_rate()) {
     // HAC/CRP-GS: the result is the bitstream; everything reported comes from decoding it.
     auto rep =
-        write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/renders");
+        write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/test");
     if (!rep.ok()) return report_error(rep.status());
     print_bitstream_report(rep.value());
     m = bitstream_metrics(rep.value(), cfg);
   } else {
-    auto eval = t.evaluate(out_dir + "/renders");
+    auto eval = t.evaluate(out_dir + "/test");
     if (!eval.ok()) return report_error(eval.status());
-    std::printf("test views (PNGs in %s/renders):\n", out_dir.c_str());
+    std::printf("test views (PNGs in %s/test/renders and gt):\n", out_dir.c_str());
     print_eval(eval.value());
     for (const auto& v : eval->views)
       m.views.push_back({v.name, v.psnr, v.ssim, eval->seconds_per_view});
@@ -230,7 +231,7 @@ train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interv
 }  // namespace
 
 void add_train_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string config, out_dir, run_dir, png_dir, method, prefix_dir;
+  static std::string config, out_dir, run_dir, png_dir, method, prefix_dir, lpips_file;
   static bool resume = false, force = false;
 
   auto* train =
@@ -262,21 +263,32 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   auto* eval = app.add_subcommand(
       "eval",
       "Render the test views of a trained run and report PSNR and SSIM per view and mean "
-      "(8-bit PNG round trip; SSIM 11x11, sigma 1.5). LPIPS is not computed: it needs "
-      "pretrained VGG weights that cannot be shipped or downloaded here.");
+      "(8-bit PNG round trip; SSIM 11x11, sigma 1.5), and LPIPS with --lpips-weights (its VGG "
+      "weights cannot be shipped or downloaded here: docs/lpips.md).");
   eval->add_option("RUN", run_dir,
                    "directory written by `crpgs train`, a .crpgs bitstream or a `crpgs decode` "
                    "directory")
       ->required();
   eval->add_option("-o,--output", png_dir,
-                   "where to write the PNGs (default: RUN_DIR/renders for a training run; none "
-                   "for a bitstream or a decode directory)");
+                   "where to write the PNGs, as OUT/renders/00000.png and OUT/gt/00000.png "
+                   "(default: RUN_DIR/test for a training run; none for a bitstream or a decode "
+                   "directory)");
+  eval->add_option("--lpips-weights", lpips_file,
+                   "an LPIPS network as a TorchScript module you exported (docs/lpips.md): "
+                   "LPIPS is reported beside PSNR and SSIM")
+      ->check(CLI::ExistingFile);
   eval->add_option("--set", g.sets,
                    "override a key of the model's config (e.g. dataset.path=DIR when the dataset "
                    "has moved)");
   eval->callback([&g] {
+    std::shared_ptr<Lpips> lpips;
+    if (!lpips_file.empty()) {
+      auto loaded = Lpips::load(lpips_file);
+      if (!loaded.ok()) throw CLI::RuntimeError(report_error(loaded.status()));
+      lpips = loaded.value();
+    }
     if (fs::is_regular_file(run_dir) || fs::is_regular_file(fs::path(run_dir) / kDecodedModelFile))
-      throw CLI::RuntimeError(eval_bitstream_file(g, run_dir, png_dir));
+      throw CLI::RuntimeError(eval_bitstream_file(g, run_dir, png_dir, lpips.get()));
     if (!fs::is_regular_file(fs::path(run_dir) / "config.yaml"))
       throw CLI::RuntimeError(report_error(not_a_model_source(run_dir)));
     ComponentRegistry r = load_registry(g);
@@ -288,7 +300,8 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     if (trainer.value()->iteration() == 0)
       throw CLI::RuntimeError(report_error(
           Status(StatusCode::kNotFound, "no checkpoint in " + run_dir + " (train first)")));
-    auto res = trainer.value()->evaluate(png_dir.empty() ? run_dir + "/renders" : png_dir);
+    auto res =
+        trainer.value()->evaluate(png_dir.empty() ? run_dir + "/test" : png_dir, lpips.get());
     if (!res.ok()) throw CLI::RuntimeError(report_error(res.status()));
     std::printf("model at iteration %d\n", trainer.value()->iteration());
     print_eval(res.value());

@@ -1,14 +1,17 @@
 // Trainer: learning works, resume is bit-identical, stop/save flags, evaluation, config wiring.
 #include <gtest/gtest.h>
+#include <torch/script.h>
 #include <torch/torch.h>
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <iostream>
 #include <memory>
 
 #include "crpgs/components.h"
+#include "crpgs/lpips.h"
 #include "crpgs/metrics.h"
 #include "crpgs/scene_generator.h"
 #include "crpgs/trainer.h"
@@ -813,11 +816,74 @@ TEST(Trainer, EvaluateWritesPngsAndMetrics) {
   auto r = t->evaluate(dir);
   ASSERT_TRUE(r.ok()) << r.status().to_string();
   ASSERT_EQ(r->views.size(), ds.test.size());
-  EXPECT_TRUE(fs::exists(fs::path(dir) / "00000.png"));
-  EXPECT_TRUE(fs::exists(fs::path(dir) / "00000_gt.png"));
+  // 3DGS's layout: renders/ and gt/, one PNG per test view in view order.
+  for (size_t i = 0; i < ds.test.size(); ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "%05zu.png", i);
+    EXPECT_TRUE(fs::exists(fs::path(dir) / "renders" / name)) << name;
+    EXPECT_TRUE(fs::exists(fs::path(dir) / "gt" / name)) << name;
+  }
   EXPECT_TRUE(std::isfinite(r->mean_psnr));
   EXPECT_GT(r->mean_ssim, -1.0);
   EXPECT_LE(r->mean_ssim, 1.0);
+  EXPECT_TRUE(std::isnan(r->mean_lpips));  // no LPIPS module given
+
+  // With an LPIPS module (here a stand-in the test scripts: twice the mean absolute difference of
+  // the [-1, 1] images), every view gets its distance, measured on the PNGs' 8-bit values.
+  const std::string module = dir + "/l1.pt";
+  {
+    torch::jit::Module m("L1");
+    m.define("def forward(self, x, y):\n    return (x - y).abs().mean()\n");
+    m.save(module);
+  }
+  auto lpips = Lpips::load(module);
+  ASSERT_TRUE(lpips.ok()) << lpips.status().to_string();
+  auto with = t->evaluate(dir, lpips.value().get());
+  ASSERT_TRUE(with.ok()) << with.status().to_string();
+  double mean = 0;
+  for (size_t i = 0; i < ds.test.size(); ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "%05zu.png", i);
+    auto render = load_image((fs::path(dir) / "renders" / name).string());
+    auto gt = load_image((fs::path(dir) / "gt" / name).string());
+    ASSERT_TRUE(render.ok() && gt.ok());
+    double sum = 0;
+    for (size_t k = 0; k < render->pixels.size(); ++k)
+      sum += std::abs(double(render->pixels[k]) - double(gt->pixels[k]));
+    const double expected = 2 * sum / double(render->pixels.size());
+    EXPECT_NEAR(with->views[i].lpips, expected, 1e-5) << name;
+    EXPECT_EQ(with->views[i].psnr, r->views[i].psnr);
+    mean += expected / double(ds.test.size());
+  }
+  EXPECT_NEAR(with->mean_lpips, mean, 1e-5);
+}
+
+TEST(Lpips, AModuleThatIsNotLpipsShapedIsRefusedWithItsFileAndReason) {
+  const std::string dir = tmp_dir("lpips_bad");
+  std::ofstream(dir + "/text.pt") << "not a module";
+  auto text = Lpips::load(dir + "/text.pt");
+  ASSERT_FALSE(text.ok());
+  EXPECT_NE(text.status().message().find(dir + "/text.pt: not a TorchScript module"),
+            std::string::npos)
+      << text.status().message();
+  {
+    torch::jit::Module m("PerPixel");
+    m.define("def forward(self, x, y):\n    return (x - y).abs()\n");
+    m.save(dir + "/per_pixel.pt");
+  }
+  auto per_pixel = Lpips::load(dir + "/per_pixel.pt");
+  ASSERT_FALSE(per_pixel.ok());
+  EXPECT_NE(per_pixel.status().message().find("expected one distance"), std::string::npos)
+      << per_pixel.status().message();
+  {
+    torch::jit::Module m("OneInput");
+    m.define("def forward(self, x):\n    return x.mean()\n");
+    m.save(dir + "/one_input.pt");
+  }
+  auto one_input = Lpips::load(dir + "/one_input.pt");
+  ASSERT_FALSE(one_input.ok());
+  EXPECT_NE(one_input.status().message().find("forward(x, y) failed"), std::string::npos)
+      << one_input.status().message();
 }
 
 TEST(Trainer, SetupFromConfigUsesTheSyntheticSceneAndEffects) {

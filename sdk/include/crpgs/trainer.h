@@ -5,6 +5,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -100,12 +101,14 @@ struct ViewMetrics {
   std::string name;
   double psnr = 0;  ///< dB, on the 8-bit round trip
   double ssim = 0;
+  double lpips = NAN;  ///< with an LPIPS module (crpgs/lpips.h), on the same round trip
 };
 
 struct EvalResult {
   std::vector<ViewMetrics> views;
   double mean_psnr = 0;
   double mean_ssim = 0;
+  double mean_lpips = NAN;
   double seconds_per_view = 0;  ///< rendering only
 };
 
@@ -141,6 +144,8 @@ struct StepTimes {
   std::array<double, 3> phase_seconds{};
   std::array<int, 3> phase_iterations{};
 };
+
+class Lpips;
 
 class Trainer {
  public:
@@ -217,7 +222,7 @@ class Trainer {
   std::string nonfinite_parameter_group() const;
 
   /// Renders the dataset's test views (or `views` when given) and measures them.
-  StatusOr<EvalResult> evaluate(const std::string& png_dir = "");
+  StatusOr<EvalResult> evaluate(const std::string& png_dir = "", const Lpips* lpips = nullptr);
   /// PSNR (8-bit round trip) of one view.
   double view_psnr(const View& view);
 
@@ -278,12 +283,14 @@ class Trainer {
   bool mixed_config_ = false;
 };
 
-/// Renders `views` with the model and measures PSNR and SSIM on the 8-bit round trip
-/// (method.md §4); writes `<png_dir>/<name>.png` (render) and `<name>_gt.png` when png_dir is set.
-/// A model with the rate path that is not already quantised is evaluated quantised
+/// Renders `views` with the model and measures PSNR and SSIM (and LPIPS with `lpips`) on the
+/// 8-bit round trip (method.md §4); with png_dir, writes the renders and the ground truth as
+/// `<png_dir>/renders/00000.png` and `<png_dir>/gt/00000.png` (3DGS's layout), numbered in view
+/// order. A model with the rate path that is not already quantised is evaluated quantised
 /// (model.quantize(), HAC's test-time attributes) and left as it was.
 StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
-                                    const std::vector<View>& views, const std::string& png_dir);
+                                    const std::vector<View>& views, const std::string& png_dir,
+                                    const Lpips* lpips = nullptr);
 
 /// Reads the `scene`, `model` and `train` sections of a resolved config.
 StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved);

@@ -5,4 +5,5 @@ list(APPEND CRPGS_BASE_SOURCES
 list(APPEND CRPGS_TORCH_SOURCES
   src/train/trainer.cpp            # loop, checkpoints, evaluation, setup from a config
   src/train/ssim.cpp               # the SSIM loss with its own backward
+  src/train/lpips.cpp              # LPIPS from a user's TorchScript module (eval)
   src/train/scene_generator.cpp)   # the embedded synthetic scene

@@ -2,6 +2,7 @@
 /// @brief The training loop (HAC train.py order: lr update, render, loss, backward, statistics,
 /// growing/pruning, Adam), checkpoints, evaluation, and the wiring from a resolved config.
 #include "crpgs/trainer.h"
+#include "crpgs/lpips.h"
 
 #include <torch/torch.h>
 
@@ -702,21 +703,26 @@ Status Trainer::train(ProgressCallback* progress, TrainControl* control) {
   }
 }
 
-StatusOr<EvalResult> Trainer::evaluate(const std::string& png_dir) {
-  return evaluate_views(*model_, *rasterizer_, dataset_.test, png_dir);
+StatusOr<EvalResult> Trainer::evaluate(const std::string& png_dir, const Lpips* lpips) {
+  return evaluate_views(*model_, *rasterizer_, dataset_.test, png_dir, lpips);
 }
 
 StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
-                                    const std::vector<View>& views, const std::string& png_dir) {
+                                    const std::vector<View>& views, const std::string& png_dir,
+                                    const Lpips* lpips) {
   torch::NoGradGuard no_grad;
   EvalResult res;
   if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no views");
   QuantizedScope quantized(model);
-  if (!png_dir.empty()) {
-    std::error_code ec;
-    std::filesystem::create_directories(png_dir, ec);
-    if (ec) return Status(StatusCode::kIoError, "cannot create " + png_dir + ": " + ec.message());
-  }
+  const auto renders_dir = std::filesystem::path(png_dir) / "renders";
+  const auto gt_dir = std::filesystem::path(png_dir) / "gt";
+  if (!png_dir.empty())
+    for (const auto& d : {renders_dir, gt_dir}) {
+      std::error_code ec;
+      std::filesystem::create_directories(d, ec);
+      if (ec)
+        return Status(StatusCode::kIoError, "cannot create " + d.string() + ": " + ec.message());
+    }
   RenderSettings settings;
   settings.background = model.options().effects.background;
   double render_s = 0;
@@ -739,16 +745,21 @@ StatusOr<EvalResult> evaluate_views(AnchorModel& model, Rasterizer& rasterizer,
     m.name = v.camera.name.empty() ? name : v.camera.name;
     m.psnr = p.value();
     m.ssim = s.value();
+    if (lpips) {
+      CRPGS_ASSIGN_OR_RETURN(m.lpips, lpips->distance(render, gt));
+    }
     res.views.push_back(m);
     if (!png_dir.empty()) {
-      const auto dir = std::filesystem::path(png_dir);
-      CRPGS_RETURN_IF_ERROR(save_png(render, (dir / (std::string(name) + ".png")).string()));
-      CRPGS_RETURN_IF_ERROR(save_png(gt, (dir / (std::string(name) + "_gt.png")).string()));
+      std::snprintf(name, sizeof(name), "%05zu.png", i);
+      CRPGS_RETURN_IF_ERROR(save_png(render, (renders_dir / name).string()));
+      CRPGS_RETURN_IF_ERROR(save_png(gt, (gt_dir / name).string()));
     }
   }
+  if (lpips) res.mean_lpips = 0;
   for (const auto& m : res.views) {
     res.mean_psnr += m.psnr / double(res.views.size());
     res.mean_ssim += m.ssim / double(res.views.size());
+    if (lpips) res.mean_lpips += m.lpips / double(res.views.size());
   }
   res.seconds_per_view = render_s / double(views.size());
   return res;
