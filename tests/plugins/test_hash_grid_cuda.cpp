@@ -8,6 +8,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <functional>
+#include <string>
 
 #include <torch/torch.h>
 
@@ -47,6 +49,18 @@ torch::Tensor positions(int64_t n, torch::ScalarType type, uint64_t seed) {
   p[3][2] = std::nan("");
   return p.to(type);
 }
+
+/// Every case: HAC's layout and the small one, float32 and float64, binarised or not; `name`
+/// says which (for the parity lines the device run's record quotes).
+void for_each_case(const std::function<void(const GridSpec&, torch::ScalarType, bool,
+                                            const std::string& name)>& check) {
+  for (bool hac : {true, false})
+    for (auto type : {torch::kFloat, torch::kDouble})
+      for (bool binarize : {true, false})
+        check(spec(hac), type, binarize,
+              std::string(hac ? "hac" : "small") + (type == torch::kFloat ? " f32" : " f64") +
+                  " binarize " + (binarize ? "1" : "0"));
+}
 #else
 #define CRPGS_REQUIRE_GPU()                                                              \
   GTEST_SKIP() << "the grid's CUDA kernels are not in this build (they need nvcc and a " \
@@ -56,56 +70,46 @@ torch::Tensor positions(int64_t n, torch::ScalarType type, uint64_t seed) {
 TEST(HashGridCuda, ForwardIsBitEqualToTheCpuKernel) {
   CRPGS_REQUIRE_GPU();
 #if CRPGS_GRID_CUDA
-  for (bool hac : {true, false})
-    for (auto type : {torch::kFloat, torch::kDouble})
-      for (bool binarize : {true, false}) {
-        const GridSpec& s = spec(hac);
-        const auto pos = positions(20000, type, 1);
-        const auto table =
-            (torch::randn({s.n_entries, s.n_features}, torch::kDouble) * 0.7).to(type);
-        const auto cpu = hash_grid::grid_forward(s, pos, table, binarize);
-        const auto gpu = hash_grid::grid_lookup_cuda(s, pos.cuda(), table.cuda(), binarize).cpu();
-        ASSERT_EQ(gpu.sizes(), cpu.sizes());
-        const double diff = (gpu - cpu).abs().max().item<double>();
-        std::printf("[ parity ] grid forward %s %s binarize %d: max|d| %.3g\n",
-                    hac ? "hac" : "small", type == torch::kFloat ? "f32" : "f64", int(binarize),
-                    diff);
-        EXPECT_TRUE(torch::equal(gpu, cpu)) << "max difference " << diff;
-        EXPECT_GT(cpu.abs().max().item<double>(), 0.1);
-      }
+  for_each_case([](const GridSpec& s, torch::ScalarType type, bool binarize,
+                   const std::string& name) {
+    const auto pos = positions(20000, type, 1);
+    const auto table = (torch::randn({s.n_entries, s.n_features}, torch::kDouble) * 0.7).to(type);
+    const auto cpu = hash_grid::grid_forward(s, pos, table, binarize);
+    const auto gpu = hash_grid::grid_lookup_cuda(s, pos.cuda(), table.cuda(), binarize).cpu();
+    ASSERT_EQ(gpu.sizes(), cpu.sizes());
+    const double diff = (gpu - cpu).abs().max().item<double>();
+    std::printf("[ parity ] grid forward %s: max|d| %.3g\n", name.c_str(), diff);
+    EXPECT_TRUE(torch::equal(gpu, cpu)) << name << ": max difference " << diff;
+    EXPECT_GT(cpu.abs().max().item<double>(), 0.1);
+  });
 #endif
 }
 
 TEST(HashGridCuda, GradientsMatchTheCpuKernel) {
   CRPGS_REQUIRE_GPU();
 #if CRPGS_GRID_CUDA
-  for (bool hac : {true, false})
-    for (auto type : {torch::kFloat, torch::kDouble})
-      for (bool binarize : {true, false}) {
-        const GridSpec& s = spec(hac);
-        const auto pos = positions(20000, type, 2);
-        // Values beyond ±1 get no gradient through the straight-through estimator.
-        const auto init =
-            (torch::randn({s.n_entries, s.n_features}, torch::kDouble) * 1.5).to(type);
-        const auto grad_out = torch::randn({pos.size(0), s.output_dim()}, torch::kDouble).to(type);
-        const auto cpu = hash_grid::grid_backward(s, pos, init, grad_out, binarize);
-        auto table = init.cuda().requires_grad_(true);
-        hash_grid::grid_lookup_cuda(s, pos.cuda(), table, binarize).backward(grad_out.cuda());
-        const auto gpu = table.grad().cpu();
-        const double scale = cpu.abs().max().item<double>();
-        const double rel = (gpu - cpu).abs().max().item<double>() / scale;
-        std::printf("[ parity ] grid backward %s %s binarize %d: max rel %.3g\n",
-                    hac ? "hac" : "small", type == torch::kFloat ? "f32" : "f64", int(binarize),
-                    rel);
-        EXPECT_GT(scale, 0.0);
-        // Atomics sum in another order than the CPU's level loop: rounding only.
-        EXPECT_LT(rel, type == torch::kFloat ? 1e-5 : 1e-12);
-        if (binarize) {
-          const auto outside = init.abs().gt(1);
-          ASSERT_GT(outside.sum().item<int64_t>(), 0);
-          EXPECT_EQ(gpu.masked_select(outside).abs().max().item<double>(), 0.0);
-        }
-      }
+  for_each_case([](const GridSpec& s, torch::ScalarType type, bool binarize,
+                   const std::string& name) {
+    const auto pos = positions(20000, type, 2);
+    // Values beyond ±1 get no gradient through the straight-through estimator.
+    const auto init = (torch::randn({s.n_entries, s.n_features}, torch::kDouble) * 1.5).to(type);
+    const auto grad_out = torch::randn({pos.size(0), s.output_dim()}, torch::kDouble).to(type);
+    const auto cpu = hash_grid::grid_backward(s, pos, init, grad_out, binarize);
+    auto table = init.cuda().requires_grad_(true);
+    hash_grid::grid_lookup_cuda(s, pos.cuda(), table, binarize).backward(grad_out.cuda());
+    const auto gpu = table.grad().cpu();
+    const double scale = cpu.abs().max().item<double>();
+    const double rel = (gpu - cpu).abs().max().item<double>() / scale;
+    std::printf("[ parity ] grid backward %s: max rel %.3g\n", name.c_str(), rel);
+    EXPECT_GT(scale, 0.0);
+    // Atomics sum in another order than the CPU's level loop: rounding only.
+    EXPECT_LT(rel, type == torch::kFloat ? 1e-5 : 1e-12) << name;
+    if (binarize) {
+      const auto outside = init.abs().gt(1);
+      ASSERT_GT(outside.sum().item<int64_t>(), 0);
+      EXPECT_EQ(gpu.masked_select(outside).abs().max().item<double>(), 0.0) << name;
+    }
+  });
 #endif
 }
 

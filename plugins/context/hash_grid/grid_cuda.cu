@@ -74,23 +74,31 @@ __device__ bool corners(const Level& lv, const scalar_t* p, scalar_t (&w)[8], in
   return inside != 0;
 }
 
+/// This thread's (point, level): its corners' weights and rows, and their count (0 for a point
+/// outside the level's [0, 1] range); -1 past the last pair. `*slot`: the pair's first value in
+/// an [n, n_levels * F] array.
 template <typename scalar_t>
-__device__ int level_corners(const Level& lv, const scalar_t* p, scalar_t (&w)[8],
-                             int32_t (&row)[8]) {
-  const bool ok = lv.dim == 3 ? corners<3>(lv, p, w, row) : corners<2>(lv, p, w, row);
+__device__ int thread_corners(const Levels& levels, int n_levels, int64_t F, const scalar_t* pos,
+                              int64_t n, scalar_t (&w)[8], int32_t (&row)[8], int64_t* slot) {
+  const int64_t t = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (t >= n * n_levels) return -1;
+  const int64_t i = t / n_levels;
+  const int l = int(t % n_levels);
+  *slot = t * F;  // = i * n_levels * F + l * F
+  const Level& lv = levels.l[l];
+  const bool ok =
+      lv.dim == 3 ? corners<3>(lv, pos + i * 3, w, row) : corners<2>(lv, pos + i * 3, w, row);
   return ok ? 1 << lv.dim : 0;
 }
 
 template <typename scalar_t>
 __global__ void forward_kernel(Levels levels, int n_levels, int64_t F, const scalar_t* pos,
                                const scalar_t* table, int64_t n, bool binarize, scalar_t* out) {
-  const int64_t t = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (t >= n * n_levels) return;
-  const int64_t i = t / n_levels;
-  const int l = int(t % n_levels);
   scalar_t w[8];
   int32_t row[8];
-  const int n_corners = level_corners(levels.l[l], pos + i * 3, w, row);
+  int64_t slot = 0;
+  const int n_corners = thread_corners(levels, n_levels, F, pos, n, w, row, &slot);
+  if (n_corners < 0) return;
   scalar_t acc[kMaxFeatures];
   for (int64_t f = 0; f < F; ++f) acc[f] = 0;
   for (int c = 0; c < n_corners; ++c) {
@@ -100,21 +108,17 @@ __global__ void forward_kernel(Levels levels, int n_levels, int64_t F, const sca
       acc[f] = acc[f] + w[c] * x;
     }
   }
-  scalar_t* o = out + i * n_levels * F + int64_t(l) * F;
-  for (int64_t f = 0; f < F; ++f) o[f] = acc[f];
+  for (int64_t f = 0; f < F; ++f) out[slot + f] = acc[f];
 }
 
 template <typename scalar_t>
 __global__ void backward_kernel(Levels levels, int n_levels, int64_t F, const scalar_t* pos,
                                 const scalar_t* grad_out, int64_t n, scalar_t* grad_table) {
-  const int64_t t = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (t >= n * n_levels) return;
-  const int64_t i = t / n_levels;
-  const int l = int(t % n_levels);
   scalar_t w[8];
   int32_t row[8];
-  const int n_corners = level_corners(levels.l[l], pos + i * 3, w, row);
-  const scalar_t* go = grad_out + i * n_levels * F + int64_t(l) * F;
+  int64_t slot = 0;
+  const int n_corners = thread_corners(levels, n_levels, F, pos, n, w, row, &slot);
+  const scalar_t* go = grad_out + slot;
   for (int c = 0; c < n_corners; ++c) {
     if (w[c] == scalar_t(0)) continue;
     scalar_t* g = grad_table + int64_t(row[c]) * F;

@@ -171,6 +171,9 @@ StatusOr<double> Trainer::step() {
   if (ng.batch.scales.size(0) > 0)
     loss = loss + options_.lambda_scaling * ng.batch.scales.prod(1).mean();
   last_rate_ = RateReport();
+  // What this iteration reports, read back in one copy: on a GPU each .item() waits for the
+  // device, and the rate phase had seven of them per iteration.
+  std::vector<torch::Tensor> reported;
   if (ng.bits_per_param.defined()) {  // rate phase (method.md §2.5, §2.6)
     const RateOptions& ro = model_->rate_options();
     const double denom = double(model_->num_anchors()) *
@@ -184,16 +187,28 @@ StatusOr<double> Trainer::step() {
     auto mask_loss = model_->options().use_offset_mask ? model_->mask_loss() : torch::zeros({});
     loss = loss + ro.lambda * rate + ro.mask_lambda * mask_loss;
     last_rate_.on = true;
-    last_rate_.bits_per_param = ng.bits_per_param.item<double>();
-    last_rate_.hash_bits = hash_bits.item<double>();
-    last_rate_.rate = rate.item<double>();
-    last_rate_.mask_loss = mask_loss.item<double>();
     last_rate_.subset = ng.rate_subset;
-    last_rate_.active_fraction = model_->active_anchors().to(torch::kDouble).mean().item<double>();
-    if (model_->links().defined()) last_rate_.leaves = (model_->links() >= 0).sum().item<int64_t>();
+    reported = {ng.bits_per_param,
+                hash_bits,
+                rate,
+                mask_loss,
+                model_->active_anchors().to(torch::kDouble).mean(),
+                model_->links().defined() ? (model_->links() >= 0).sum() : torch::zeros({})};
   }
+  reported.insert(reported.begin(), {loss, l1});
+  for (auto& r : reported) r = r.detach().to(loss.device(), torch::kDouble).reshape({});
+  const auto host = torch::stack(reported).cpu();
+  const double* h = host.data_ptr<double>();
   auto t3 = Clock::now();
-  const double loss_value = loss.item<double>();
+  const double loss_value = h[0];
+  if (last_rate_.on) {
+    last_rate_.bits_per_param = h[2];
+    last_rate_.hash_bits = h[3];
+    last_rate_.rate = h[4];
+    last_rate_.mask_loss = h[5];
+    last_rate_.active_fraction = h[6];
+    last_rate_.leaves = int64_t(h[7]);
+  }
   // Growing/pruning on schedule (statistics of this iteration first when it has valid ones): a
   // discarded iteration keeps the schedule of an undisturbed run, without its own statistics.
   auto densify = [&](bool with_statistics) {
@@ -253,7 +268,7 @@ StatusOr<double> Trainer::step() {
   times_.phase_seconds[size_t(phase)] += dt(t_begin, t5);
   times_.phase_iterations[size_t(phase)] += 1;
   last_gaussians_ = ng.batch.means.size(0);
-  last_l1_ = l1.item<double>();
+  last_l1_ = h[1];
   iteration_ = it;
   return loss_value;
 }
