@@ -60,9 +60,10 @@ class CliProgress final : public ProgressCallback {
 /// Train from a resolved config into `out_dir`; evaluates the test views at the end.
 /// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
 /// `prefix_dir`: shared training prefixes (SetupOptions::prefix_dir); "" = off.
+/// `start_from`: another run's checkpoint to continue from under this config (SetupOptions).
 int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
                  bool resume, const std::string& method = "", const std::string& prefix_dir = "",
-                 bool replace = true) {
+                 bool replace = true, const std::string& start_from = "") {
   // What the lock adds (the directory, DIR/.lock) goes again if the set-up fails: a mistyped
   // path leaves the file system as it was.
   std::error_code ec;
@@ -93,7 +94,9 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
                 "): --resume continues it, --force trains a new one over it, or pick another -o"));
   // Nothing in the directory changes until the set-up (dataset, plugins, checkpoint) succeeded:
   // a typo in a path must not cost a finished run its results.
-  auto trainer = setup_training_and_warn(cfg, registry, SetupOptions{out_dir, resume, prefix_dir});
+  SetupOptions setup{out_dir, resume, prefix_dir};
+  setup.start_from = start_from;
+  auto trainer = setup_training_and_warn(cfg, registry, setup);
   if (!trainer.ok()) return fail_before_training(trainer.status());
   Trainer& t = *trainer.value();
   for (const std::string& w : t.setting_warnings())
@@ -123,14 +126,16 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
   if (!t.prefix_status().empty())
     std::printf("%s\n", t.prefix_status().c_str());
   else if (t.iteration() > 0)
-    std::printf("resumed at iteration %d%s%s\n", t.iteration(),
-                t.state_origin_differences().empty()
-                    ? ""
-                    : (" (" + t.state_origin_differences() + ")").c_str(),
-                t.state_config_hash().empty() || t.state_config_hash() == t.options().config_hash
-                    ? ""
-                    : " (written under another config: training goes on with this one, "
-                      "config.yaml)");
+    std::printf(
+        "%s at iteration %d%s%s\n",
+        resume && fs::exists(t.checkpoint_path()) ? "resumed" : ("continues " + start_from).c_str(),
+        t.iteration(),
+        t.state_origin_differences().empty() ? ""
+                                             : (" (" + t.state_origin_differences() + ")").c_str(),
+        t.state_config_hash().empty() || t.state_config_hash() == t.options().config_hash
+            ? ""
+            : " (written under another config: training goes on with this one, "
+              "config.yaml)");
   std::printf("idle compute threads: %s\n", idle_thread_settings().c_str());
   std::printf("BLAS kernels: %s\n", blas_kernels_explained().c_str());
 
@@ -231,7 +236,7 @@ train: {schedule: fast, fast_factor: 0.0375, full_iterations: 40000, eval_interv
 }  // namespace
 
 void add_train_commands(CLI::App& app, GlobalOptions& g) {
-  static std::string config, out_dir, run_dir, png_dir, method, prefix_dir, lpips_file;
+  static std::string config, out_dir, run_dir, png_dir, method, prefix_dir, lpips_file, from;
   static bool resume = false, force = false;
 
   auto* train =
@@ -249,6 +254,10 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
       "directory of shared training prefixes (rate path): start from the state at rate_start "
       "of a run that differs only in rate.lambda/rate.mask_lambda or thread counts when one "
       "is there, and publish this run's when it is not (`crpgs sweep` passes RUNS/prefixes)");
+  train->add_option("--from", from,
+                    "start from the final state of another run (its directory or checkpoint.pt) "
+                    "under this config: a short fine-tune, e.g. at another rate.lambda with "
+                    "train.iterations a few hundred above that run's (bench/results/rates.md)");
   train->add_option("--method", method,
                     "name of the method in metrics.json and reports (default: the config's file "
                     "name; `crpgs sweep` passes the config name plus its non-rate grid keys)");
@@ -256,8 +265,13 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(config, g, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
+    const std::string start_from =
+        from.empty() || !fs::is_directory(from) ? from : from + "/checkpoint.pt";
+    if (!start_from.empty() && !fs::is_regular_file(start_from))
+      throw CLI::RuntimeError(report_error(Status(
+          StatusCode::kNotFound, "--from " + from + ": no checkpoint there (" + start_from + ")")));
     throw CLI::RuntimeError(
-        run_training(cfg.value(), r, out_dir, resume, method, prefix_dir, force));
+        run_training(cfg.value(), r, out_dir, resume, method, prefix_dir, force, start_from));
   });
 
   auto* eval = app.add_subcommand(

@@ -495,6 +495,24 @@ TEST(DecodeCli, DemoRunsCrpgsYamlOnTheEmbeddedScene) {
   EXPECT_EQ(metrics->provenance.device, "cpu");
   EXPECT_EQ(metrics->provenance.seed, 0);
 
+  // A fine-tune: --from continues the trained state under another λ, up to a later
+  // train.iterations; an end at or before the checkpoint's iteration is refused, leaving nothing.
+  const std::string ft = (dir / "fine_tune").string();
+  const std::string from = "train -c '" + (dir / "run" / "config.yaml").string() + "' -o '" + ft +
+                           "' --from '" + (dir / "run").string() + "' --set rate.lambda=0.004";
+  EXPECT_EQ(run_cli(from, dir / "log.txt", &log), 1) << log;
+  EXPECT_NE(log.find("is at iteration 40, and this run ends at train.iterations 40"),
+            std::string::npos)
+      << log;
+  EXPECT_FALSE(fs::exists(ft));
+  ASSERT_EQ(run_cli(from + " --set train.iterations=50", dir / "log.txt", &log), 0) << log;
+  EXPECT_NE(log.find("continues " + (dir / "run").string() + "/checkpoint.pt at iteration 40"),
+            std::string::npos)
+      << log;
+  auto tuned = experiments::read_run_metrics(ft + "/metrics.json");
+  ASSERT_TRUE(tuned.ok()) << tuned.status().to_string();
+  EXPECT_EQ(tuned->lambda, 0.004);
+
   auto demo = Config::load_file((dir / "run" / "config.yaml").string());
   ASSERT_TRUE(demo.ok()) << demo.status().to_string();
   auto shipped = Config::load_file(std::string(CRPGS_SOURCE_DIR) + "/configs/crpgs.yaml");

@@ -320,6 +320,10 @@ struct SetupOptions {
   /// Keep the model on the CPU whatever train.device says: for commands that read a trained
   /// model (evaluate, encode, render, export) rather than train it.
   bool model_on_cpu = false;
+  /// A checkpoint another run wrote: a run without its own checkpoint continues from that state
+  /// under this config (a fine-tune at another rate.lambda, say), up to its train.iterations,
+  /// which must lie beyond the checkpoint's iteration. "" = off.
+  std::string start_from{};
 };
 
 /// Wires everything from a resolved config: dataset (or the synthetic scene), rasterizer and

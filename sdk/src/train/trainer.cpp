@@ -1098,6 +1098,16 @@ StatusOr<std::unique_ptr<Trainer>> setup_training(const Config& resolved,
       return Status(StatusCode::kInvalidArgument, "resume needs an output directory");
     if (std::filesystem::exists(path)) CRPGS_RETURN_IF_ERROR(trainer->load_checkpoint(path));
   }
+  if (!setup.start_from.empty() && trainer->iteration() == 0) {
+    CRPGS_RETURN_IF_ERROR(trainer->load_checkpoint(setup.start_from));
+    const int at = trainer->iteration(), end = trainer->options().schedule.iterations;
+    if (at >= end)
+      return Status(StatusCode::kInvalidConfig,
+                    setup.start_from + " is at iteration " + std::to_string(at) +
+                        ", and this run ends at train.iterations " + std::to_string(end) +
+                        ": set it above (e.g. --set train.iterations=" + std::to_string(at + 400) +
+                        " for a short fine-tune)");
+  }
   const std::string& prefix = train_options.prefix_path;
   if (!prefix.empty() && trainer->iteration() == 0 && std::filesystem::exists(prefix)) {
     // A bad prefix costs only the time it would have saved: train from the start, and move it
