@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -219,6 +220,72 @@ TEST(InstantNgp, IntrinsicsFromFieldsOpenGlConvertedAndEveryEighthIsTest) {
   EXPECT_LT((ds->test[1].camera.center() - Eigen::Vector3d(8, 0, 0)).norm(), 1e-12);
   ASSERT_FALSE(ds->warnings.empty());
   EXPECT_TRUE(contains(ds->warnings[0], "k1=")) << ds->warnings[0];
+}
+
+// nerfstudio's transforms.json: its split lists (test from val when test is empty; frames in no
+// list are left out), its initial points (ply_file_path, read by draco's PLY reader) and its
+// camera model (pinhole ones only).
+TEST(Nerfstudio, SplitListsInitialPointsAndCameraModel) {
+  const fs::path root = test::fresh_dir();
+  std::string frames;
+  for (int i = 0; i < 6; ++i) {
+    const std::string name = "images/frame_" + std::to_string(i) + ".png";
+    ASSERT_TRUE(save_png(test::random_image(32, 24, 3, unsigned(i)), (root / name).string()).ok());
+    frames += std::string(frames.empty() ? "" : ",") + "{\"file_path\": \"" + name +
+              "\", \"transform_matrix\": [[1,0,0," + std::to_string(i) +
+              "],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}";
+  }
+  test::write_bytes(root / "sparse_pc.ply",
+                    "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float "
+                    "y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty "
+                    "uchar blue\nend_header\n0 0 -1 255 0 0\n1 0 -2 0 255 0\n0 1 -3 0 0 255\n");
+  auto write = [&](const std::string& model, const std::string& lists) {
+    test::write_bytes(root / "transforms.json",
+                      "{\"camera_model\": \"" + model +
+                          "\", \"fl_x\": 30, \"fl_y\": 30, \"cx\": 16, \"cy\": 12, \"w\": 32, "
+                          "\"h\": 24, \"k1\": 0.01, \"ply_file_path\": \"sparse_pc.ply\", " +
+                          lists + "\"frames\": [" + frames + "]}");
+  };
+  write("OPENCV",
+        "\"train_filenames\": [\"images/frame_0.png\", \"images/frame_1.png\", "
+        "\"images/frame_2.png\", \"images/frame_3.png\"], \"val_filenames\": "
+        "[\"images/frame_4.png\"], \"test_filenames\": [], ");
+  DatasetOptions o;
+  o.path = root.string();
+  auto ds = load_dataset(o);
+  ASSERT_TRUE(ds.ok()) << ds.status().message();
+  ASSERT_EQ(ds->train.size(), 4u);
+  ASSERT_EQ(ds->test.size(), 1u);  // val, test_filenames being empty; frame_5 in no list
+  EXPECT_EQ(ds->test[0].camera.name, "frame_4.png");
+  ASSERT_EQ(ds->points.size(), 3u);
+  EXPECT_NEAR(ds->points[2].z(), -3.f, 1e-6);
+  ASSERT_EQ(ds->point_colors.size(), 3u);
+  EXPECT_NEAR(ds->point_colors[1].y(), 1.f, 1e-6);
+  EXPECT_NEAR(ds->point_colors[1].x(), 0.f, 1e-6);
+  EXPECT_TRUE(std::any_of(ds->warnings.begin(), ds->warnings.end(),
+                          [](const std::string& w) { return contains(w, "k1="); }));
+
+  // Without lists: every eighth frame is a test view, as for instant-ngp.
+  write("PINHOLE", "");
+  ds = load_dataset(o);
+  ASSERT_TRUE(ds.ok()) << ds.status().message();
+  EXPECT_EQ(ds->train.size() + ds->test.size(), 6u);
+
+  write("OPENCV_FISHEYE", "");
+  ds = load_dataset(o);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "camera_model OPENCV_FISHEYE is not a pinhole"))
+      << ds.status().message();
+  write("OPENCV", "\"train_filenames\": [\"images/frame_0.png\", \"images/missing.png\"], ");
+  ds = load_dataset(o);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "list 2 images, 1 of them among the frames"))
+      << ds.status().message();
+  std::filesystem::remove(root / "sparse_pc.ply");
+  write("OPENCV", "");
+  ds = load_dataset(o);
+  ASSERT_FALSE(ds.ok());
+  EXPECT_TRUE(contains(ds.status().message(), "sparse_pc.ply")) << ds.status().message();
 }
 
 TEST(NerfSynthetic, RgbaCompositedFovIntrinsicsAndValAsTestWhenTestImagesAbsent) {

@@ -53,7 +53,9 @@ struct Dataset {
 ///    OpenGL cameras converted to OpenCV. When no test image exists on disk, val is the test split
 ///    (warning).
 ///  - instant_ngp: transforms.json (fl_x/fl_y/cx/cy/w/h or camera_angle_x[/_y]); split by
-///    test_every.
+///    test_every. nerfstudio's keys are read as nerfstudio defines them: camera_model (pinhole
+///    models; OPENCV's distortion ignored with a warning, others refused), ply_file_path (the
+///    initial points) and train/val/test_filenames (the split; test from val when it is empty).
 ///  - llff: poses_bounds.npy (N×17 float64; [down, right, back] axes converted; hwf rescaled to
 ///    the loaded image size, principal point at the centre); points from sparse/0 if present.
 /// Views are sorted by image name; view i is a test view when i % test_every == 0, unless the

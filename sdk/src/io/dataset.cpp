@@ -10,6 +10,8 @@
 #include <set>
 #include <thread>
 
+#include <draco/io/ply_decoder.h>
+#include <draco/point_cloud/point_cloud.h>
 #include <Eigen/Geometry>
 
 #include "io/colmap.h"
@@ -269,14 +271,90 @@ Status load_nerf_synthetic(const DatasetOptions& o, Loaded& out,
   return OkStatus();
 }
 
+/// nerfstudio's `ply_file_path`: the initial points (x, y, z and, when present, red, green,
+/// blue), read with draco's PLY reader.
+Status read_point_ply(const fs::path& file, Loaded& out) {
+  draco::PointCloud pc;
+  draco::PlyDecoder decoder;
+  if (const draco::Status st = decoder.DecodeFromFile(file.string(), &pc); !st.ok())
+    return Status(StatusCode::kIoError, file.string() + ": " + st.error_msg_string());
+  const draco::PointAttribute* pos = pc.GetNamedAttribute(draco::GeometryAttribute::POSITION);
+  const draco::PointAttribute* col = pc.GetNamedAttribute(draco::GeometryAttribute::COLOR);
+  if (!pos || pos->num_components() != 3)
+    return Status(StatusCode::kIoError, file.string() + ": no x, y, z vertex properties");
+  for (draco::PointIndex i(0); i < pc.num_points(); ++i) {
+    float xyz[3] = {0, 0, 0};
+    pos->ConvertValue<float, 3>(pos->mapped_index(i), xyz);
+    if (!std::isfinite(xyz[0]) || !std::isfinite(xyz[1]) || !std::isfinite(xyz[2])) continue;
+    out.points.emplace_back(xyz[0], xyz[1], xyz[2]);
+    uint8_t rgb[3] = {128, 128, 128};
+    if (col && col->num_components() >= 3) col->ConvertValue<uint8_t, 3>(col->mapped_index(i), rgb);
+    out.colors.emplace_back(rgb[0] / 255.f, rgb[1] / 255.f, rgb[2] / 255.f);
+  }
+  return OkStatus();
+}
+
+const std::string* string_field(const io::JsonValue& doc, const char* key) {
+  const io::JsonValue* v = doc.find(key);
+  return v && v->is_string() ? &v->string : nullptr;
+}
+
+/// transforms.json as instant-ngp and nerfstudio write it. nerfstudio's keys: camera_model (a
+/// pinhole model; OPENCV's distortion is ignored with a warning, fisheye and equirectangular
+/// are refused), ply_file_path (initial points) and train/val/test_filenames (the split; test
+/// from val_filenames when test_filenames is absent or empty).
 Status load_instant_ngp(const DatasetOptions& o, Loaded& out, std::vector<std::string>& warnings) {
-  const fs::path file = fs::path(o.path) / "transforms.json";
+  const fs::path root(o.path), file = root / "transforms.json";
+  CRPGS_ASSIGN_OR_RETURN(const io::JsonValue doc, io::read_json_file(file.string()));
+  if (const std::string* model = string_field(doc, "camera_model");
+      model && *model != "OPENCV" && *model != "PINHOLE" && *model != "SIMPLE_PINHOLE")
+    return Status(StatusCode::kIoError,
+                  file.string() + ": camera_model " + *model +
+                      " is not a pinhole model (accepted: PINHOLE, SIMPLE_PINHOLE, OPENCV with "
+                      "its distortion ignored); undistort the images first");
   CRPGS_RETURN_IF_ERROR(read_transforms(file, o.path, out.views, warnings));
   if (out.views.empty()) return Status(StatusCode::kIoError, file.string() + ": no frames");
   CRPGS_RETURN_IF_ERROR(check_exist(out.views, file.string()));
   std::stable_sort(out.views.begin(), out.views.end(),
                    [](const Pending& a, const Pending& b) { return a.path < b.path; });
-  assign_split(out.views, o.test_every);
+  // The split nerfstudio lists, as frame paths.
+  auto listed = [&](const char* key) -> StatusOr<std::set<std::string>> {
+    std::set<std::string> paths;
+    if (const io::JsonValue* l = doc.find(key); l) {
+      if (!l->is_array())
+        return Status(StatusCode::kIoError, file.string() + ": " + key + " is not a list");
+      for (const auto& v : l->array) {
+        if (!v.is_string())
+          return Status(StatusCode::kIoError, file.string() + ": " + key + " lists a non-string");
+        paths.insert(resolve_frame_path(root, v.string));
+      }
+    }
+    return paths;
+  };
+  CRPGS_ASSIGN_OR_RETURN(const auto train, listed("train_filenames"));
+  CRPGS_ASSIGN_OR_RETURN(auto test, listed("test_filenames"));
+  if (test.empty()) {
+    CRPGS_ASSIGN_OR_RETURN(test, listed("val_filenames"));
+  }
+  if (train.empty() && test.empty()) {
+    assign_split(out.views, o.test_every);
+  } else {
+    std::vector<Pending> kept;
+    for (Pending& v : out.views) {
+      const bool in_train = train.count(v.path) > 0, in_test = test.count(v.path) > 0;
+      if (!in_train && !in_test) continue;  // a frame the lists leave out: in no split
+      v.test = in_test;
+      kept.push_back(std::move(v));
+    }
+    const size_t n_listed = train.size() + test.size();
+    if (kept.size() < n_listed)
+      return not_found(file.string() + ": train/val/test_filenames list " +
+                       std::to_string(n_listed) + " images, " + std::to_string(kept.size()) +
+                       " of them among the frames");
+    out.views = std::move(kept);
+  }
+  if (const std::string* ply = string_field(doc, "ply_file_path"))
+    CRPGS_RETURN_IF_ERROR(read_point_ply(root / *ply, out));
   return OkStatus();
 }
 
