@@ -9,7 +9,7 @@
 #include <torch/nn/functional/normalization.h>
 
 #include "core/shuffle.h"
-#include "crpgs/trainer.h"
+#include "crpgs/image_tensor.h"
 #include "model/chunked_mlp.h"
 #include "model/optimizer.h"
 
