@@ -28,6 +28,7 @@ namespace ex = crpgs::experiments;
 
 struct SweepArgs {
   std::string file, out;
+  std::vector<std::string> only, sets;
   int jobs = 0;
   int run_index = -1;
   bool slurm = false, dry_run = false, status = false;
@@ -253,7 +254,14 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   auto spec = ex::load_sweep(a.file);
   if (!spec.ok()) return report_error(spec.status());
   const std::string runs_dir = a.out.empty() ? spec->output : a.out;
-  const auto runs = ex::expand_sweep(spec.value(), runs_dir);
+  const auto all_runs = ex::expand_sweep(spec.value(), runs_dir);
+  auto runs = ex::select_runs(all_runs, a.only);
+  if (runs.empty())
+    return report_error(Status(StatusCode::kInvalidArgument, "--only: no run of " + a.file +
+                                                                 " matches (its runs are named "
+                                                                 "like " +
+                                                                 all_runs.front().id + ")"));
+  if (Status st = ex::add_overrides(runs, a.sets); !st.ok()) return report_error(st);
   ComponentRegistry registry = load_registry(g);
   if (a.status) return print_sweep_status(spec.value(), runs, runs_dir, registry);
 
@@ -261,7 +269,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
   opt.workers = a.jobs > 0 ? a.jobs : spec->workers;
   opt.registry = &registry;
   opt.dry_run = a.dry_run;
-  opt.sweep_size = static_cast<int>(runs.size());
+  opt.sweep_size = static_cast<int>(all_runs.size());
   opt.stop = &g_stop;
   if (spec->share_prefix) opt.prefix_dir = ex::sweep_prefix_dir(runs_dir);
   opt.one_model_rate = spec->one_model_rate;
@@ -278,11 +286,14 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
 
   if (a.run_index >= 0) {
     opt.use_prepared_configs = true;  // as submitted, whatever the base configs say by now
-    if (a.run_index >= static_cast<int>(runs.size()))
+    const auto it = std::find_if(runs.begin(), runs.end(),
+                                 [&](const ex::SweepRun& r) { return r.index == a.run_index; });
+    if (it == runs.end())
       return report_error(Status(StatusCode::kInvalidArgument,
                                  "--run-index " + std::to_string(a.run_index) + ": the sweep has " +
-                                     std::to_string(runs.size()) + " runs"));
-    Status st = ex::run_one(runs[static_cast<size_t>(a.run_index)], opt);
+                                     std::to_string(all_runs.size()) + " runs" +
+                                     (a.only.empty() ? "" : ", and --only leaves it out")));
+    Status st = ex::run_one(*it, opt);
     if (st.code() == StatusCode::kCancelled) {
       std::fprintf(stderr, "crpgs: %s\n", st.message().c_str());
       return 130;
@@ -290,7 +301,11 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
     return st.ok() ? 0 : report_error(st);
   }
 
-  std::printf("sweep %s: %zu runs in %s\n", spec->name.c_str(), runs.size(), runs_dir.c_str());
+  if (runs.size() == all_runs.size())
+    std::printf("sweep %s: %zu runs in %s\n", spec->name.c_str(), runs.size(), runs_dir.c_str());
+  else
+    std::printf("sweep %s: %zu of its %zu runs (--only) in %s\n", spec->name.c_str(), runs.size(),
+                all_runs.size(), runs_dir.c_str());
   if (a.slurm) {
     if (!spec->one_model_scales.empty())
       std::printf(
@@ -400,6 +415,13 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g) {
                   "run only the run with this index (what each Slurm array task does)")
       ->check(CLI::Number)
       ->check(CLI::Range(0, 1 << 30));
+  cmd->add_option("--only", a.only,
+                  "run (or show) only the runs whose name matches this pattern, e.g. "
+                  "'bonsai/*' or '*/lambda-4.0e-3_*' (repeatable: any of them)");
+  cmd->add_option("--set", a.sets,
+                  "override a config key of every run, after the sweep's own values, e.g. "
+                  "--set train.device=cuda --set rasterizer.type=cuda to run it on a GPU; a "
+                  "finished run counts as done wherever it ran (repeatable)");
   cmd->add_flag("--status", a.status,
                 "show each run's state, progress (iteration, rate, ETA: from its log) or result, "
                 "which waiting runs will start from a shared prefix, and the sweep's time left "

@@ -35,6 +35,8 @@ std::string make_fixture(const std::string& name) {
       const double psnr = (method == "far" ? 40.0 : 24.0) + 0.6 * i + 0.05 * i * i;
       m.views = {{"v0", psnr - 0.1, 0.80, 0.020}, {"v8", psnr + 0.1, 0.82, 0.024}};
       m.train_seconds = 600 + 100 * i;
+      m.provenance.version = "0.test";
+      m.provenance.device = method == "hac" && i == 3 ? "cuda" : "cpu";  // a GPU machine's run
       m.encode_seconds = 2 + 0.5 * i;
       m.decode_seconds = 1 + 0.25 * i;
       for (int t = 1; t <= 10; ++t)
@@ -104,6 +106,12 @@ TEST(Report, TablesHaveRdPointsAndBdRows) {
   // hac from 5e6 B / 24.00 dB to 8e6 B / 24.65 dB, train 600 -> 700 s: per +0.1 dB 450.7 KiB,
   // 15.4 s.
   EXPECT_NE(md.find("| hac | 0.004 | 0.002 | +0.650 | +450.7 | +15.4 |"), std::string::npos) << md;
+  // A run trained on a GPU says so, and its time is not set against a CPU run's.
+  EXPECT_NE(md.find("| 900.0 (cuda) |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| 800.0 |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| hac | 0.001 | 0.0005 | +0.850 | +882.4 | — (cpu vs cuda) |"),
+            std::string::npos)
+      << md;
   // Ablation view at equal λ: crpgs is 30% smaller than hac at the same PSNR; "far" is 100x.
   EXPECT_NE(md.find("| crpgs | 0.004 | 3.3379 | -30.00 | 24.000 | +0.000 |"), std::string::npos)
       << md;

@@ -96,6 +96,36 @@ TEST(Sweep, ParsesAndExpandsDeterministically) {
   EXPECT_EQ(expand_sweep(spec.value(), "/elsewhere")[5].dir, "/elsewhere/" + runs[5].id);
 }
 
+TEST(Sweep, OnlyAndSetPickRunsAndOverrideEveryOne) {
+  const std::string dir = fresh_dir("only");
+  const auto runs = expand_sweep(parse_sweep(sweep_yaml(dir), "sweep.yaml").value());
+  auto lego = select_runs(runs, {"lego/*"});
+  ASSERT_EQ(lego.size(), runs.size() / 2);
+  EXPECT_EQ(lego[0].index, 12);  // the whole sweep's numbering
+  for (const auto& r : lego) EXPECT_EQ(r.dataset, "lego");
+  const auto two = select_runs(runs, {"fern/a/lambda-1.0e-3_*", "*/bee/*_sfa-1"});
+  ASSERT_EQ(two.size(), 2u + 6u);
+  EXPECT_EQ(two[0].id, "fern/a/lambda-1.0e-3_sfa-0.5");
+  EXPECT_TRUE(select_runs(runs, {"mic/*"}).empty());
+  EXPECT_EQ(select_runs(runs, {}).size(), runs.size());
+
+  ASSERT_TRUE(add_overrides(lego, {"train.device=cuda", "rasterizer.type=cuda"}).ok());
+  for (const auto& r : lego) {
+    ASSERT_GE(r.overrides.size(), 2u);
+    EXPECT_EQ(r.overrides.back(), (std::pair<std::string, std::string>{"rasterizer.type", "cuda"}));
+  }
+  // Another rasterizer type drops the settings of the sweep's own (its threads).
+  std::vector<SweepRun> gpu(1);
+  gpu[0].overrides = {{"rasterizer.threads", "1"}, {"train.threads", "1"}, {"rasterizer2.x", "3"}};
+  ASSERT_TRUE(add_overrides(gpu, {"rasterizer.type=cuda"}).ok());
+  EXPECT_EQ(
+      gpu[0].overrides,
+      (Overrides{{"train.threads", "1"}, {"rasterizer2.x", "3"}, {"rasterizer.type", "cuda"}}));
+  const Status bad = add_overrides(lego, {"train.device"});
+  EXPECT_EQ(bad.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(bad.message().find("KEY=VALUE"), std::string::npos) << bad.message();
+}
+
 TEST(Sweep, RejectsBadFiles) {
   EXPECT_FALSE(parse_sweep("configs: []\n", "s.yaml").ok());
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nbogus: 1\n", "s.yaml").ok());
@@ -528,6 +558,12 @@ TEST(Sweep, AFinishedRunWhoseConfigChangedIsKeptAndNamed) {
   threads.overrides.emplace_back("train.threads", "2");
   EXPECT_EQ(config_change(threads, nullptr, true), "");
   EXPECT_EQ(config_change(threads, nullptr), "train.threads: (none) -> 2");
+  // So does where it ran (a GPU machine, `crpgs sweep --set train.device=cuda`).
+  SweepRun gpu = s.runs[0];
+  gpu.overrides.emplace_back("train.device", "cuda");
+  gpu.overrides.emplace_back("rasterizer.type", "cuda");
+  EXPECT_EQ(config_change(gpu, nullptr, true), "");
+  EXPECT_NE(config_change(gpu, nullptr).find("train.device: (none) -> cuda"), std::string::npos);
   edited.overrides.emplace_back("train.threads", "2");
   EXPECT_EQ(config_change(edited, nullptr, true), "entropy.lambda: 1.0e-4 -> 0.25");
   s.lines.clear();

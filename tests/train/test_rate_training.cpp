@@ -461,6 +461,29 @@ TEST(RateTraining, SweepAndTrainerAgreeOnTheSharedPrefixKey) {
   EXPECT_EQ(keys.size(), 2u);  // HAC's four weights share one prefix, CRP-GS's another
 }
 
+// A run finished on a GPU machine (`crpgs sweep --set train.device=cuda --set
+// rasterizer.type=cuda`) counts as done here, even where this build has no CUDA rasterizer to
+// resolve its config with; resuming it here would change where it computes, and says so.
+TEST(RateTraining, ARunFinishedOnAGpuCountsAsDoneOnACpuBuild) {
+  SKIP_WITHOUT_PLUGINS();
+  const std::string root = CRPGS_SOURCE_DIR;
+  auto spec = experiments::load_sweep(root + "/configs/sweeps/benchmark_fast.yaml");
+  ASSERT_TRUE(spec.ok()) << spec.status().message();
+  const std::string out = std::string(CRPGS_TEST_TMP_DIR) + "/gpu_sweep";
+  std::filesystem::remove_all(out);
+  auto runs = experiments::select_runs(experiments::expand_sweep(spec.value(), out),
+                                       {"fern/crpgs/lambda-4.0e-3_*"});
+  ASSERT_EQ(runs.size(), 1u);
+  runs[0].config_path = root + "/" + runs[0].config_path;
+  runs[0].scene = root + "/" + runs[0].scene;
+  const experiments::SweepRun here = runs[0];
+  ASSERT_TRUE(experiments::add_overrides(runs, {"train.device=cuda", "rasterizer.type=cuda"}).ok());
+  // Unresolved: as a CUDA build wrote it (a CPU build cannot resolve the CUDA rasterizer).
+  ASSERT_TRUE(experiments::prepare_run(runs[0], nullptr).ok());
+  EXPECT_EQ(experiments::config_change(here, &test::rate_registry(), true), "");
+  EXPECT_NE(experiments::config_change(here, &test::rate_registry()), "");
+}
+
 // fern_rd_sequential.yaml continues fern_rd.yaml's runs: the same ids and directories, and
 // configs that differ only in thread counts (which a finished run's config may).
 TEST(RateTraining, TheSequentialFernSweepHasFernRdsRunsAndPrefixes) {

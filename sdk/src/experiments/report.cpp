@@ -48,6 +48,13 @@ std::string mib(double bytes) {
   return fmt("%.4f", bytes / kMiB);
 }
 
+// Training seconds, with the device where it was not the CPU: a GPU's minutes and a CPU's hours
+// side by side in one table must not read as the methods' cost.
+std::string train_time_text(const RunMetrics& m) {
+  const std::string& d = m.provenance.device;
+  return fmt("%.1f", m.train_seconds) + (d.empty() || d == "cpu" ? "" : " (" + d + ")");
+}
+
 std::string count_text(int64_t n) {
   return n >= 0 ? std::to_string(n) : "—";
 }
@@ -721,12 +728,12 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
     for (const auto& method : g.methods)
       for (const auto* r : g.by_method.at(method)) {
         const auto& m = r->metrics;
-        rd.push_back(
-            {method, rate_text(*r), std::to_string(m.size_bytes), mib(m.size_bytes),
-             fmt("%.3f", m.psnr_mean), fmt("%.4f", m.ssim_mean), count_text(m.anchors),
-             count_text(m.gaussians), fmt("%.1f", m.train_seconds), fmt("%.3f", m.encode_seconds),
-             fmt("%.3f", m.decode_seconds), fmt("%.2f", m.render_seconds_per_view * 1e3),
-             m.peak_memory_bytes > 0 ? fmt("%.0f", m.peak_memory_bytes / kMiB) : "—", r->id});
+        rd.push_back({method, rate_text(*r), std::to_string(m.size_bytes), mib(m.size_bytes),
+                      fmt("%.3f", m.psnr_mean), fmt("%.4f", m.ssim_mean), count_text(m.anchors),
+                      count_text(m.gaussians), train_time_text(m), fmt("%.3f", m.encode_seconds),
+                      fmt("%.3f", m.decode_seconds), fmt("%.2f", m.render_seconds_per_view * 1e3),
+                      m.peak_memory_bytes > 0 ? fmt("%.0f", m.peak_memory_bytes / kMiB) : "—",
+                      r->id});
       }
     md += md_table(rd);
     html_body += html_table(rd);
@@ -795,7 +802,9 @@ StatusOr<ReportOutput> write_report(const std::vector<std::string>& runs_dirs,
         cost.push_back(
             {method, rate_text(*runs[i - 1]), rate_text(*runs[i]), fmt("%+.3f", dp),
              fmt("%+.1f", k * (double(b.size_bytes) - double(a.size_bytes)) / 1024.0),
-             fmt("%+.1f", k * (b.train_seconds - a.train_seconds)),
+             a.provenance.device == b.provenance.device
+                 ? fmt("%+.1f", k * (b.train_seconds - a.train_seconds))
+                 : "— (" + a.provenance.device + " vs " + b.provenance.device + ")",
              fmt("%+.3f", k * (b.decode_seconds - a.decode_seconds)),
              fmt("%+.3f", k * 1e3 * (b.render_seconds_per_view - a.render_seconds_per_view))});
       }

@@ -2,6 +2,7 @@
 #include "crpgs/experiments/sweep.h"
 
 #include <fcntl.h>
+#include <fnmatch.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -307,6 +308,40 @@ Status lay_scene_over(Config& cfg, const std::string& scene_path) {
 
 }  // namespace
 
+std::vector<SweepRun> select_runs(const std::vector<SweepRun>& runs,
+                                  const std::vector<std::string>& globs) {
+  if (globs.empty()) return runs;
+  std::vector<SweepRun> out;
+  for (const auto& r : runs)
+    if (std::any_of(globs.begin(), globs.end(),
+                    [&](const std::string& g) { return fnmatch(g.c_str(), r.id.c_str(), 0) == 0; }))
+      out.push_back(r);
+  return out;
+}
+
+Status add_overrides(std::vector<SweepRun>& runs, const std::vector<std::string>& assignments) {
+  for (const auto& a : assignments) {
+    const size_t eq = a.find('=');
+    if (eq == std::string::npos || eq == 0)
+      return Status(StatusCode::kInvalidArgument,
+                    "--set " + a + ": expected KEY=VALUE (e.g. train.device=cuda)");
+    const std::string key = a.substr(0, eq);
+    // Another component type replaces the component's block, as in a config's `base:`: the
+    // run's own settings of the old one (e.g. rasterizer.threads) would not apply to it.
+    const bool type = key.size() > 5 && key.compare(key.size() - 5, 5, ".type") == 0;
+    const std::string block = type ? key.substr(0, key.size() - 4) : "";
+    for (auto& r : runs) {
+      if (type)
+        r.overrides.erase(
+            std::remove_if(r.overrides.begin(), r.overrides.end(),
+                           [&](const auto& o) { return o.first.rfind(block, 0) == 0; }),
+            r.overrides.end());
+      r.overrides.emplace_back(key, a.substr(eq + 1));
+    }
+  }
+  return OkStatus();
+}
+
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry) {
   // As `crpgs train`: load_file makes a config file's dataset path absolute against that file
   // (a scene file's too); one set by the sweep file (like --set) is relative to the working
@@ -363,7 +398,7 @@ void flatten(const YAML::Node& n, const std::string& prefix,
 }  // namespace
 
 std::string config_change(const SweepRun& run, const ComponentRegistry* registry,
-                          bool ignore_thread_counts) {
+                          bool ignore_placement) {
   const std::string saved_path = run.dir + "/config.yaml";
   std::error_code ec;
   if (!fs::exists(saved_path, ec)) return "";
@@ -371,14 +406,23 @@ std::string config_change(const SweepRun& run, const ComponentRegistry* registry
   if (!now.ok()) return "";  // the sweep reports the config error itself
   // The saved copy resolved by this build, so that defaults added since do not count.
   auto saved = Config::load_file(saved_path);
+  if (saved.ok() && ignore_placement) {
+    // The rasterizer is where the run computed (its type, threads or GPU), and this build need
+    // not have the one it ran with: compare with the sweep's own.
+    auto raw = build_run_config(run, nullptr);
+    const YAML::Node r = raw.ok() ? raw->root()["rasterizer"] : YAML::Node();
+    if (Status st = saved->set("rasterizer", r ? YAML::Clone(r) : YAML::Node(YAML::NodeType::Map));
+        !st.ok())
+      return st.message();
+  }
   if (saved.ok() && registry) saved = saved->resolve(*registry);
   if (!saved.ok()) return "its config.yaml is unreadable (" + saved.status().message() + ")";
   if (saved->dump() == now->dump()) return "";
   std::map<std::string, std::string> a, b;
   flatten(saved->root(), "", a);
   flatten(now->root(), "", b);
-  if (ignore_thread_counts) {
-    for (const char* key : {"train.threads", "rasterizer.threads"}) a.erase(key), b.erase(key);
+  if (ignore_placement) {
+    for (const char* key : {"train.threads", "train.device"}) a.erase(key), b.erase(key);
     if (a == b) return "";
   }
   std::vector<std::string> diffs;

@@ -99,6 +99,17 @@ struct SweepRun {
 /// Datasets x configs x grid, in that nesting order. `runs_dir` empty = spec.output.
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir = "");
 
+/// The runs whose id matches one of `globs` (fnmatch patterns, e.g. "bonsai/*" or
+/// "*/lambda-4.0e-3_*"), their indices kept; all of them when `globs` is empty.
+std::vector<SweepRun> select_runs(const std::vector<SweepRun>& runs,
+                                  const std::vector<std::string>& globs);
+
+/// Appends "key=value" assignments (`crpgs sweep --set`) to every run's overrides, after the grid
+/// values: e.g. train.device=cuda to run a sweep on a GPU machine. KEY.type=... (another
+/// component) drops the run's other KEY.* overrides, as a config's `base:` replaces a block that
+/// names another type. Refuses text without '='.
+Status add_overrides(std::vector<SweepRun>& runs, const std::vector<std::string>& assignments);
+
 /// The run's config: base config, then the scene file's keys, then the overrides, resolved
 /// against `registry` when non-null.
 StatusOr<Config> build_run_config(const SweepRun& run, const ComponentRegistry* registry);
@@ -110,11 +121,13 @@ Status prepare_run(const SweepRun& run, const ComponentRegistry* registry);
 /// How the config the run directory was prepared with (RUN/config.yaml, resolved by this build)
 /// differs from the one the sweep builds now: "" when the same (or never prepared), else up to 3
 /// "key: old -> new" items. A finished run whose sweep changed is kept, not rerun: the user
-/// decides, as the results may be wanted. `ignore_thread_counts`: train.threads and
-/// rasterizer.threads do not count (a finished run's result stands however many threads computed
-/// it; a resume under another count is not bit-exact, so there they count).
+/// decides, as the results may be wanted. `ignore_placement`: what says where a run computes,
+/// not what (train.threads, train.device and the rasterizer section: the CUDA rasterizer is held
+/// to the CPU one by parity tests), does not count: a finished run's result stands wherever it
+/// was computed, also when this build lacks its rasterizer; a resume elsewhere is not bit-exact,
+/// so there it counts.
 std::string config_change(const SweepRun& run, const ComponentRegistry* registry,
-                          bool ignore_thread_counts = false);
+                          bool ignore_placement = false);
 
 enum class RunState { kPending, kComplete, kInterrupted };
 /// kComplete: metrics.json readable and no `.running` marker. kInterrupted: a marker was left
