@@ -27,6 +27,11 @@ PlyGaussians random_gaussians(int degree, size_t n, unsigned seed) {
   fill(g.opacity, n);
   fill(g.log_scales, 3 * n);
   fill(g.rotations, 4 * n);
+  for (size_t i = 0; i < n; ++i) {  // unit quaternions, as a file holds them
+    float* q = &g.rotations[4 * i];
+    const float norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    for (int k = 0; k < 4; ++k) q[k] /= norm;
+  }
   return g;
 }
 
@@ -184,6 +189,44 @@ TEST(Ply, VerticesWithNonFiniteValuesAreLeftOutAndCounted) {
     EXPECT_EQ(r->sh_rest[9 * k + 8], g.sh_rest[9 * i + 8]);
     EXPECT_EQ(r->rotations[4 * k + 3], g.rotations[4 * i + 3]);
   }
+}
+
+// What every consumer reads: 8-bit alpha formats (.spz, .sog) turn an opacity above 254.5/255
+// into 255, an infinite logit when read back (bench/results/export.md); a viewer may assume unit
+// quaternions. Read back, an infinite opacity is a saturated alpha, not a broken vertex.
+TEST(Ply, WritesOpacitiesEightBitAlphaHoldsAndUnitRotations) {
+  PlyGaussians g = random_gaussians(0, 4, 3);
+  g.opacity = {7.9f, -10.6f, 5.0f, -1.0f};
+  const float q1[4] = {0.6f, 0.f, 0.8f * 1.05f, 0.f};  // norm 1.0197
+  std::copy(q1, q1 + 4, &g.rotations[4]);
+  std::fill(&g.rotations[8], &g.rotations[12], 0.f);
+  auto r = decode(*encode_ply(g));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->opacity[0], kPlyMaxOpacityLogit);
+  EXPECT_EQ(r->opacity[1], -kPlyMaxOpacityLogit);
+  EXPECT_EQ(r->opacity[2], 5.0f);
+  EXPECT_NEAR(1.f / (1.f + std::exp(-kPlyMaxOpacityLogit)), 254.f / 255.f, 1e-6f);
+  const double n1 = std::hypot(std::hypot(r->rotations[4], r->rotations[5]),
+                               std::hypot(r->rotations[6], r->rotations[7]));
+  EXPECT_NEAR(n1, 1.0, 1e-6);
+  EXPECT_NEAR(r->rotations[6] / r->rotations[4], 0.8f * 1.05f / 0.6f, 1e-5f);  // same rotation
+  EXPECT_EQ(r->rotations[8], 1.f);  // a zero quaternion: the identity
+  EXPECT_TRUE(same_bits({&r->rotations[0], &r->rotations[4]},
+                        {&g.rotations[0], &g.rotations[4]}));  // unit ones as they are
+
+  std::string bytes = *encode_ply(g);
+  const size_t body = bytes.find("end_header\n") + 11, floats = inria_props(0).size();
+  const float inf = std::numeric_limits<float>::infinity();
+  std::memcpy(&bytes[body + 9 * 4], &inf, 4);              // vertex 0's opacity
+  std::memcpy(&bytes[body + (floats + 10) * 4], &inf, 4);  // vertex 1's scale_0
+  const float neg = -inf;
+  std::memcpy(&bytes[body + (3 * floats + 9) * 4], &neg, 4);  // vertex 3's opacity
+  auto back = decode(bytes);
+  ASSERT_TRUE(back.ok()) << back.status().message();
+  EXPECT_EQ(back->dropped_non_finite, 1u);  // vertex 1 only
+  ASSERT_EQ(back->size(), 3u);
+  EXPECT_EQ(back->opacity[0], kPlyReadSaturatedLogit);
+  EXPECT_EQ(back->opacity[2], -kPlyReadSaturatedLogit);
 }
 
 TEST(Ply, ShBasisMatchesTheReferenceFormulas) {

@@ -27,6 +27,9 @@ constexpr int sh_coeff_count(int degree) {
 /// (constants and signs exactly as the reference rasterizer's eval_sh).
 void sh_basis(int degree, float x, float y, float z, float* out);
 
+/// The logit an infinite opacity is read as: sigmoid(±30) is 1 or 0 in float.
+constexpr float kPlyReadSaturatedLogit = 30.f;
+
 /// A 3DGS scene in the file's (pre-activation) parametrisation; arrays are row-major per vertex.
 struct PlyGaussians {
   int sh_degree = 0;
@@ -48,14 +51,24 @@ struct PlyGaussians {
   std::array<float, 3> color(size_t i, float x, float y, float z) const;
 };
 
-/// The file's bytes (header + binary body; normals written as 0).
+/// The largest opacity logit written: logit(254/255). Formats that store alpha in 8 bits (.spz,
+/// .sog) round anything above 254.5/255 to 255, which reads back as an infinite logit.
+constexpr float kPlyMaxOpacityLogit = 5.537334f;
+
+/// The file's bytes (header + binary body; normals written as 0). What every consumer reads:
+/// opacity logits clamped to ±kPlyMaxOpacityLogit (alpha 1/255..254/255) and rotations as unit
+/// quaternions (a norm off 1 by more than float rounding is normalised; a zero one becomes the
+/// identity); every other value as it is.
 StatusOr<std::string> encode_ply(const PlyGaussians& g);
 /// Writes encode_ply(g) atomically.
 Status write_ply(const std::string& path, const PlyGaussians& g);
 
 /// Parses a binary little-endian .ply with a `vertex` element holding the 3DGS properties (any
 /// scalar type, converted to float); the SH degree follows from the number of f_rest_i (0, 9, 24
-/// or 45). Other properties and elements after `vertex` are ignored. Refuses, with a message,
+/// or 45). Other properties and elements after `vertex` are ignored. A vertex with a NaN, or an
+/// infinite value other than its opacity, is left out and counted (dropped_non_finite); an
+/// infinite opacity logit is alpha 1 or 0 (what an 8-bit alpha of 255 or 0 reads back as) and is
+/// kept as ±kPlyReadSaturatedLogit. Refuses, with a message,
 /// ascii or big-endian files, headers over 64 KiB, missing properties, list properties before
 /// the vertex data, and counts the file is too short for (checked before allocating).
 StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::string& name);

@@ -203,9 +203,18 @@ StatusOr<std::string> encode_ply(const PlyGaussians& g) {
     put(normal, 3);
     put(&g.sh_dc[3 * i], 3);
     if (rest) put(&g.sh_rest[rest * i], rest);
-    put(&g.opacity[i], 1);
+    const float opacity = std::clamp(g.opacity[i], -kPlyMaxOpacityLogit, kPlyMaxOpacityLogit);
+    put(&opacity, 1);
     put(&g.log_scales[3 * i], 3);
-    put(&g.rotations[4 * i], 4);
+    std::array<float, 4> q;
+    std::copy_n(&g.rotations[4 * i], 4, q.begin());
+    const double norm = std::sqrt(double(q[0]) * q[0] + double(q[1]) * q[1] + double(q[2]) * q[2] +
+                                  double(q[3]) * q[3]);
+    if (!(norm > 0))
+      q = {1.f, 0.f, 0.f, 0.f};
+    else if (std::abs(norm - 1.0) > 1e-6)
+      for (float& c : q) c = float(c / norm);
+    put(q.data(), 4);
   }
   return out;
 }
@@ -335,6 +344,8 @@ StatusOr<PlyGaussians> decode_ply(const uint8_t* data, size_t size, const std::s
     bool finite = true;
     for (size_t c = 0; c < cols.size(); ++c) {
       row[c] = read_scalar(cols[c]->type, v + cols[c]->offset);
+      if (c == 6 + nr && std::isinf(row[c]))  // opacity: alpha 1 or 0
+        row[c] = std::copysign(kPlyReadSaturatedLogit, row[c]);
       finite = finite && std::isfinite(row[c]);
     }
     if (!finite) {  // e.g. a Gaussian that diverged in training: it would render as nothing
