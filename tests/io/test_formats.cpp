@@ -64,6 +64,21 @@ TEST(Json, ParsesTransformsStyleDocuments) {
   EXPECT_DOUBLE_EQ(io::parse_json("[-0.5e-3]")->array[0].number, -0.5e-3);
 }
 
+TEST(Json, UnicodeEscapesAreStrictAndSurrogatePairsAreOneCodePoint) {
+  // U+1F600 as its UTF-16 pair: one 4-byte UTF-8 sequence; U+20AC (3 bytes); upper-case hex.
+  auto v = io::parse_json(R"(["\uD83D\ude00", "\u20AC", "\u00E9x"])");
+  ASSERT_TRUE(v.ok()) << v.status().message();
+  EXPECT_EQ(v->array[0].string, "\xF0\x9F\x98\x80");
+  EXPECT_EQ(v->array[1].string, "\xE2\x82\xAC");
+  EXPECT_EQ(v->array[2].string, "\xC3\xA9x");
+  for (const char* bad : {R"(["\u12G4"])", R"(["\u12"])", R"(["\u-123"])", R"(["\uD83D"])",
+                          R"(["\uD83Dx"])", R"(["\uD83D\u0041"])", R"(["\uDE00"])"}) {
+    auto r = io::parse_json(bad);
+    ASSERT_FALSE(r.ok()) << bad;
+    EXPECT_TRUE(contains(r.status().message(), "\\u escape")) << r.status().message();
+  }
+}
+
 TEST(Npy, ParsesHeaderAndRejectsTruncation) {
   const std::string bytes = npy_bytes({1, 2, 3, 4, 5, 6}, 2, 3);
   auto a = io::parse_npy(bytes, "x.npy");
