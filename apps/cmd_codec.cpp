@@ -39,90 +39,6 @@ void print_link_rate_report(const LinkRateReport& r, uint64_t side_bytes) {
 
 }  // namespace
 
-StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cfg,
-                                                    const ComponentRegistry& registry,
-                                                    const std::string& path,
-                                                    const std::string& png_dir, double rate_scale) {
-  using clock = std::chrono::steady_clock;
-  auto secs = [](clock::time_point a) {
-    return std::chrono::duration<double>(clock::now() - a).count();
-  };
-  BitstreamReport rep;
-  rep.path = path;
-  rep.rate_scale = rate_scale;
-  // The codec reads the model on the CPU (its arithmetic is the CPU's); training is over.
-  t.model().to(torch::kCPU);
-  auto t0 = clock::now();
-  QuantizedAttributes q;
-  CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), &q, rate_scale));
-  CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
-                         encode_model(coded, cfg, codec_components_of(t.model())));
-  CRPGS_RETURN_IF_ERROR(write_file_atomic(path, enc.bytes));
-  rep.encode_seconds = secs(t0);
-  rep.estimated_vs_coded_bits = enc.estimated_vs_coded_bits;
-  if (t.model().links().defined()) {
-    rep.links_built = (t.model().links() >= 0).sum().item<int64_t>();
-    rep.links_coded = coded.links.defined() ? count_links(coded.links).leaves : 0;
-  }
-
-  // The training-side quantised model, on exactly the rows and steps of the bitstream.
-  t.model().set_quantized(q);
-  auto qeval = evaluate_views(t.model(), t.rasterizer(), t.dataset().test, "");
-  t.model().clear_quantized();
-  if (!qeval.ok()) return qeval.status();
-  rep.quantized_psnr = qeval->mean_psnr;
-
-  // Everything reported from here on comes from the file on disk.
-  t0 = clock::now();
-  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
-  CRPGS_ASSIGN_OR_RETURN(DecodeResult dec, decode_model(bytes, registry));
-  CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<AnchorModel> decoded,
-                         model_from_decoded(dec, t.model().options()));
-  rep.decode_seconds = secs(t0);
-  rep.file_bytes = bytes.size();
-  rep.anchors = dec.model.voxels.size(0);
-  rep.gaussians = dec.model.offset_masks.sum().item<int64_t>();
-  if (dec.model.links.defined()) {
-    CRPGS_ASSIGN_OR_RETURN(
-        rep.link_rate,
-        link_rate_report(dec.model, dec.params, *dec.components.context, *dec.components.entropy));
-    for (const auto& s : dec.sections)
-      if (s.id == "LINK" || s.id == "AMSK") rep.link_side_bytes += s.bytes;
-  }
-  rep.sections = dec.sections;
-  CRPGS_ASSIGN_OR_RETURN(EvalResult deval,
-                         evaluate_views(*decoded, t.rasterizer(), t.dataset().test, png_dir));
-  rep.decoded_psnr = deval.mean_psnr;
-  for (const auto& v : deval.views) {
-    rep.view_names.push_back(v.name);
-    rep.decoded_views.push_back({v.psnr, v.ssim, deval.seconds_per_view});
-  }
-  return rep;
-}
-
-experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config) {
-  experiments::RunMetrics m;
-  m.size_bytes = r.file_bytes;
-  m.anchors = r.anchors;
-  m.gaussians = r.gaussians;
-  for (const auto& s : r.sections) {
-    const std::string c = section_category(s.id);
-    for (int k = 0; k < experiments::kNumBitstreamCategories; ++k)
-      if (c == experiments::category_name(static_cast<experiments::BitstreamCategory>(k)))
-        m.breakdown[size_t(k)] += s.bytes;
-  }
-  uint64_t listed = 0;
-  for (auto b : m.breakdown) listed += b;
-  m.breakdown[size_t(experiments::BitstreamCategory::kOther)] += m.size_bytes - listed;
-  m.encode_seconds = r.encode_seconds;
-  m.decode_seconds = r.decode_seconds;
-  m.lambda = config.section("rate")["lambda"].as<double>();
-  for (size_t i = 0; i < r.view_names.size(); ++i)
-    m.views.push_back(
-        {r.view_names[i], r.decoded_views[i][0], r.decoded_views[i][1], r.decoded_views[i][2]});
-  return m;
-}
-
 void print_bitstream_report(const BitstreamReport& r) {
   char scale[48] = "";
   if (r.rate_scale != 1.0) std::snprintf(scale, sizeof scale, ", rate scale %.6g", r.rate_scale);
@@ -271,7 +187,7 @@ StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t t
 /// The trainer of a finished run, for re-encoding it.
 StatusOr<std::unique_ptr<Trainer>> trained_run(const GlobalOptions& g, const std::string& run_dir,
                                                const ComponentRegistry& r, Config* cfg) {
-  CRPGS_ASSIGN_OR_RETURN(*cfg, load_config(run_dir + "/config.yaml", g, r));
+  CRPGS_ASSIGN_OR_RETURN(*cfg, load_config(run_dir + "/config.yaml", g.sets, r));
   CRPGS_RETURN_IF_ERROR(check_dataset(*cfg));
   CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> t,
                          setup_training_and_warn(*cfg, r, reading_setup(run_dir)));

@@ -190,7 +190,7 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
   if (ply->dropped_non_finite > 0)
     std::fprintf(stderr, "warning: %s: %zu Gaussians with a NaN or infinite value left out\n",
                  path.c_str(), ply->dropped_non_finite);
-  auto cfg = load_config(config, g, r);
+  auto cfg = load_config(config, g.sets, r);
   if (!cfg.ok()) return report_error(cfg.status());
   auto options = model_options_from_config(cfg.value());
   if (!options.ok()) return report_error(options.status());

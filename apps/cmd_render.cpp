@@ -25,62 +25,6 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-constexpr int64_t kDecodedFormat = 1;  // bump when the key set below changes meaning
-
-torch::Tensor bytes_tensor(const std::string& s) {  // [len] uint8
-  auto t = torch::empty({int64_t(s.size())}, torch::kUInt8);
-  if (!s.empty()) std::memcpy(t.data_ptr<uint8_t>(), s.data(), s.size());
-  return t;
-}
-
-std::string tensor_bytes(const torch::Tensor& t) {
-  const auto c = t.to(torch::kUInt8).contiguous();
-  return std::string(reinterpret_cast<const char*>(c.data_ptr<uint8_t>()), size_t(c.numel()));
-}
-
-/// Writes the decoded model as a torch archive: the integer symbols exactly as decoded, the
-/// dequantised attributes a renderer needs (symbol x step, as model_from_decoded computes them),
-/// the MLPs and the feature model's state. Keys have no '.', which the archive treats as nesting.
-Status write_decoded(const std::string& path, const DecodeResult& d) {
-  const CodedModel& m = d.model;
-  const EntropyParams& p = d.params;
-  const int64_t n = m.voxels.size(0);
-  try {
-    torch::serialize::OutputArchive ar;
-    ar.write("format_version", torch::tensor(kDecodedFormat, torch::kLong));
-    ar.write("voxel_size", torch::tensor(m.voxel_size, torch::kDouble));
-    ar.write("bounds", m.bounds);                             // [2, 3]
-    ar.write("chunk", torch::tensor(m.chunk, torch::kLong));  // anchors per coded chunk
-    ar.write("q0", torch::tensor({m.q0.feature, m.q0.scaling, m.q0.offset}, torch::kDouble));
-    ar.write("voxels", m.voxels);                                    // [N, 3] int32
-    ar.write("offset_masks", m.offset_masks);                        // [N, K] bool
-    ar.write("feature_symbols", m.feature_sym);                      // [N, Dc] int32
-    ar.write("scaling_symbols", m.scaling_sym);                      // [N, 6] int32
-    ar.write("offset_symbols", m.offset_sym);                        // [N, K, 3] int32
-    ar.write("q_f", p.q_f);                                          // [N, 1] steps
-    ar.write("q_s", p.q_s);                                          // [N, 1]
-    ar.write("q_o", p.q_o);                                          // [N, 1]
-    ar.write("positions", voxel_positions(m.voxels, m.voxel_size));  // [N, 3] float32
-    ar.write("features", m.feature_sym.to(torch::kFloat) * p.q_f);   // [N, Dc]
-    ar.write("scaling", m.scaling_sym.to(torch::kFloat) * p.q_s);    // [N, 6] activated
-    ar.write("offsets", m.offset_sym.to(torch::kFloat) * p.q_o.view({n, 1, 1}));  // [N, K, 3]
-    std::string names;
-    int64_t i = 0;
-    for (const auto& [name, t] : m.mlps) {
-      names += name + "\n";
-      ar.write("mlp_" + std::to_string(i++), t);
-    }
-    ar.write("mlp_names", bytes_tensor(names));
-    const auto st = d.components.features->save_state();
-    ar.write("features_state", bytes_tensor(std::string(st.begin(), st.end())));
-    std::ostringstream os;
-    ar.save_to(os);
-    return write_file_atomic(path, os.str());
-  } catch (const std::exception& e) {
-    return Status(StatusCode::kIoError, "writing " + path + ": " + e.what());
-  }
-}
-
 int decode_command(const GlobalOptions& g, const std::string& path, const std::string& out_dir,
                    int threads) {
   ComponentRegistry r = load_registry(g);
@@ -106,7 +50,7 @@ int decode_command(const GlobalOptions& g, const std::string& path, const std::s
   const std::string model_path = (fs::path(out_dir) / kDecodedModelFile).string();
   t0 = Clock::now();
   // The model first: a directory with config.yaml alone would pass for a training run.
-  Status st = write_decoded(model_path, dec.value());
+  Status st = write_decoded_model(model_path, dec.value());
   if (st.ok()) st = dec->config.save(config_path);
   if (!st.ok()) return report_error(st);
   const double write_s = seconds_since(t0);
@@ -192,42 +136,6 @@ int render_command(const GlobalOptions& g, const std::string& source, const std:
 }
 
 }  // namespace
-
-StatusOr<std::unique_ptr<AnchorModel>> read_decoded_model(const std::string& path,
-                                                          const Config& cfg,
-                                                          const ComponentRegistry& r) {
-  CRPGS_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, read_file_bytes(path));
-  try {
-    torch::serialize::InputArchive ar;
-    ar.load_from(reinterpret_cast<const char*>(bytes.data()), bytes.size());
-    auto get = [&](const char* key) {
-      torch::Tensor t;  // read() into a defined tensor would resize it in place
-      ar.read(key, t);
-      return t;
-    };
-    if (get("format_version").item<int64_t>() != kDecodedFormat)
-      return Status(StatusCode::kUnsupportedVersion, path + ": unknown decoded-model version");
-    std::map<std::string, torch::Tensor> mlps;
-    std::istringstream names(tensor_bytes(get("mlp_names")));
-    std::string name;
-    for (int64_t i = 0; std::getline(names, name); ++i)
-      mlps[name] = get(("mlp_" + std::to_string(i)).c_str());
-    crpgs_create_args args = create_args_for(cfg);
-    CRPGS_ASSIGN_OR_RETURN(std::shared_ptr<FeatureModel> features,
-                           create_component<FeatureModel>(r, cfg.section("features"), args));
-    const std::string state = tensor_bytes(get("features_state"));
-    std::string err;
-    if (!state.empty() &&
-        !features->load_state(std::vector<uint8_t>(state.begin(), state.end()), &err))
-      return Status(StatusCode::kCorruptBitstream, path + ": feature model state: " + err);
-    CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
-    return AnchorModel::from_decoded(options, features, get("positions"), get("features"),
-                                     get("scaling"), get("offsets"), get("offset_masks"), mlps,
-                                     get("bounds"), get("voxel_size").item<double>());
-  } catch (const std::exception& e) {
-    return Status(StatusCode::kCorruptBitstream, "reading " + path + ": " + e.what());
-  }
-}
 
 void add_render_commands(CLI::App& app, GlobalOptions& g) {
   static std::string path, out_dir, source, views = "test";

@@ -263,7 +263,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
                     "name; `crpgs sweep` passes the config name plus its non-rate grid keys)");
   train->callback([&g] {
     ComponentRegistry r = load_registry(g);
-    auto cfg = load_config(config, g, r);
+    auto cfg = load_config(config, g.sets, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
     const std::string start_from =
         from.empty() || !fs::is_directory(from) ? from : from + "/checkpoint.pt";
@@ -306,7 +306,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     if (!fs::is_regular_file(fs::path(run_dir) / "config.yaml"))
       throw CLI::RuntimeError(report_error(not_a_model_source(run_dir)));
     ComponentRegistry r = load_registry(g);
-    auto cfg = load_config(run_dir + "/config.yaml", g, r);
+    auto cfg = load_config(run_dir + "/config.yaml", g.sets, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
     if (Status st = check_dataset(cfg.value()); !st.ok()) throw CLI::RuntimeError(report_error(st));
     auto trainer = setup_training_and_warn(cfg.value(), r, reading_setup(run_dir));
@@ -329,7 +329,7 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
   demo->add_option("--set", g.sets, "override a key of the demo config");
   demo->callback([&g] {
     ComponentRegistry r = load_registry(g);
-    auto cfg = load_config("", g, r, kDemoConfig);
+    auto cfg = load_config("", g.sets, r, kDemoConfig);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
     std::printf(
         "crpgs demo: synthetic scene -> train (fast schedule) -> bitstream -> decode -> "

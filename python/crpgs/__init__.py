@@ -1,0 +1,75 @@
+"""crpgs: compress 3D Gaussian Splatting scenes with CRP-GS (and HAC) from Python.
+
+The C++ SDK's pipeline (docs/python.md): open a model (a .crpgs bitstream, a `crpgs decode`
+directory or a training run) and render any camera into a torch.Tensor; train a config with a
+progress callback; encode a run's bitstream at other rates; inspect a bitstream; read a run's
+metrics.json; BD-rate and BD-PSNR. SDK errors raise crpgs.Error with the SDK's message.
+
+    import crpgs
+    model = crpgs.open("runs/fern/scene.crpgs")
+    camera = model.cameras("test")[0]
+    image = model.render(camera)          # [H, W, 3] float32 in [0, 1]
+    print(model.evaluate()["psnr"])
+"""
+import json as _json
+import os as _os
+import sys as _sys
+
+# Idle OpenMP and OpenBLAS threads sleep instead of spinning (what the crpgs CLI sets for
+# itself): on a loaded machine spinning workers slow training several times. Read when the
+# libraries load, so only when torch is not imported yet; a variable already set is kept.
+if "torch" not in _sys.modules:
+    _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    _os.environ.setdefault("OPENBLAS_THREAD_TIMEOUT", "4")
+
+import torch  # noqa: E402,F401  (loads libtorch before the extension that links it)
+
+from . import _crpgs
+from ._crpgs import Camera, Error, Model, __version__, bd_psnr, bd_rate, commit  # noqa: F401
+
+__all__ = [
+    "Camera", "Error", "Model", "bd_psnr", "bd_rate", "encode", "info", "open", "read_metrics",
+    "train", "__version__",
+]
+
+
+def _paths(ps):
+    return [str(p) for p in ps]
+
+
+def train(config, out_dir, sets=(), progress=None, resume=False, plugin_dirs=()):
+    """Trains `config` (a YAML file; "key=value" overrides in `sets`) into out_dir: checkpoints,
+    the resolved config.yaml and, on the rate path, the bitstream scene.crpgs, written and
+    checked (decoded and evaluated). progress(report) is called every iteration with a dict
+    (iteration, total, loss, test_psnr, anchors, gaussians, iterations_per_second); an exception
+    it raises, or Ctrl-C, stops training with a checkpoint (resume=True continues) and is raised.
+    Returns {iterations, seconds, checkpoint[, bitstream: {path, bytes, psnr, ...}]}."""
+    return _crpgs.train(str(config), str(out_dir), list(sets), progress, resume,
+                        _paths(plugin_dirs))
+
+
+def encode(run_dir, out, rate_scale=1.0, plugin_dirs=()):
+    """Writes a finished run's bitstream to `out` with its quantisation steps scaled by
+    rate_scale (> 1: smaller, < 1: larger), then decodes and evaluates it."""
+    return _crpgs.encode(str(run_dir), str(out), float(rate_scale), _paths(plugin_dirs))
+
+
+def info(path, plugin_dirs=()):
+    """A bitstream's size, anchors and sections (id, component, bytes, category)."""
+    return _crpgs.info(str(path), _paths(plugin_dirs))
+
+
+def open(source, sets=(), threads=0, plugin_dirs=()):  # noqa: A001  (crpgs.open, like io.open)
+    """Opens a .crpgs file, a `crpgs decode` directory or a training run directory.
+
+    sets: "key=value" overrides of the dataset/rasterizer (e.g. "dataset.path=DIR");
+    threads: CPU threads (0 keeps the config's)."""
+    return Model(str(source), list(sets), threads, _paths(plugin_dirs))
+
+
+def read_metrics(path):
+    """A run's metrics.json (or the file itself) as a dict, validated by the SDK's reader."""
+    path = str(path)
+    if _os.path.isdir(path):
+        path = _os.path.join(path, "metrics.json")
+    return _json.loads(_crpgs.metrics_json(path))
