@@ -33,8 +33,18 @@ __all__ = [
 ]
 
 
+# An installed package finds the installed plugins beside it (PREFIX/lib/crpgs/plugins, three
+# folders up from PREFIX/lib/pythonX.Y/dist-packages/crpgs); a build tree's extension knows its
+# own plugin folder.
+_INSTALLED_PLUGINS = _os.path.normpath(
+    _os.path.join(_os.path.dirname(__file__), "..", "..", "..", "crpgs", "plugins"))
+
+
 def _paths(ps):
-    return [str(p) for p in ps]
+    dirs = [str(p) for p in ps]
+    if _os.path.isdir(_INSTALLED_PLUGINS):
+        dirs.append(_INSTALLED_PLUGINS)
+    return dirs
 
 
 def train(config, out_dir, sets=(), progress=None, resume=False, plugin_dirs=()):
