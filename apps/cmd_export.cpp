@@ -21,44 +21,6 @@ namespace crpgs::cli {
 namespace {
 namespace fs = std::filesystem;
 
-/// Renders the .ply Gaussians on `views` and measures them as `crpgs eval` does (8-bit PNG
-/// round trip); PNGs go to png_dir when set.
-StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterizer,
-                                  const std::vector<View>& views,
-                                  const std::array<float, 3>& background,
-                                  const std::string& png_dir) {
-  torch::NoGradGuard no_grad;
-  if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no test views");
-  if (std::error_code ec; !png_dir.empty() && !fs::create_directories(png_dir, ec) && ec)
-    return Status(StatusCode::kIoError, "cannot create " + png_dir + ": " + ec.message());
-  RenderSettings settings;
-  settings.background = background;
-  EvalResult res;
-  double seconds = 0;
-  for (size_t i = 0; i < views.size(); ++i) {
-    const View& v = views[i];
-    const auto t0 = std::chrono::steady_clock::now();
-    auto img = rasterizer.render(ply_to_batch(ply, v.camera), v.camera, settings).image;
-    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    const Image render = quantize_8bit(tensor_to_image(img));
-    CRPGS_ASSIGN_OR_RETURN(ImageMetrics m, compare_images(render, quantize_8bit(v.image)));
-    ViewMetrics vm;
-    vm.name = v.camera.name;
-    vm.psnr = m.psnr;
-    vm.ssim = m.ssim;
-    res.views.push_back(vm);
-    res.mean_psnr += m.psnr / double(views.size());
-    res.mean_ssim += m.ssim / double(views.size());
-    if (!png_dir.empty()) {
-      char name[32];
-      std::snprintf(name, sizeof name, "test_%05zu.png", i);
-      CRPGS_RETURN_IF_ERROR(save_png(render, (fs::path(png_dir) / name).string()));
-    }
-  }
-  res.seconds_per_view = seconds / double(views.size());
-  return res;
-}
-
 /// Test-view PSNR below the anchor model's beyond which `crpgs export` warns, in dB.
 constexpr double kExportGapWarning = 0.5;
 
@@ -71,48 +33,23 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   if (!src.ok()) return report_error(src.status());
   AnchorModel& model = src->model();
   const Dataset& ds = src->setup->dataset();
-  BakeOptions opt;
+  ExportOptions opt;
   opt.sh_degree = degree;
   opt.directions = directions;
   opt.view_weight = view_weight;
   opt.opacity_over_views = opacity_from == "views";
-  for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
-  if (opt.camera_centers.empty()) {
-    // The test views then give the representative views only: fitting the colours they see
-    // would make the PSNR measured on them below optimistic.
-    for (const auto& v : ds.test) opt.camera_centers.push_back(v.camera.center());
-    opt.view_weight = 0;
-    std::fprintf(stderr, "note: no training views; SH fitted on the sphere alone\n");
-  }
-  if (refine > 0 && ds.train.empty())  // before the bake, which may take a while
-    return report_error(Status(StatusCode::kInvalidArgument,
-                               "--refine needs the training views, and the dataset has none"));
-  if (refine > 0 && !src->train_views_as_trained)
-    std::fprintf(stderr,
-                 "warning: --set changed the train/test split: --refine fits the new training "
-                 "views, and the model may have been trained on the test views measured below\n");
-  const auto t0 = std::chrono::steady_clock::now();
-  auto baked = bake_gaussians(model, opt, src->quantized ? &src->q : nullptr);
-  if (!baked.ok()) return report_error(baked.status());
-  const double bake_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (refine > 0) {
-    RefineOptions ro;
-    ro.iterations = refine;
-    ro.lambda_dssim = src->setup->options().lambda_dssim;  // the model's own training loss
-    ro.seed = src->setup->options().seed;
-    const auto t1 = std::chrono::steady_clock::now();
-    std::optional<ProgressBar> bar;
-    auto rep = refine_gaussians(baked.value(), src->setup->rasterizer(), ds.train,
-                                model.options().effects.background, ro,
-                                [&bar, refine](int it, double loss) {
-                                  if (!bar) bar.emplace("refine", refine);
-                                  char extra[32];
-                                  std::snprintf(extra, sizeof extra, "loss %.4f", loss);
-                                  bar->update(it, extra);
-                                });
-    if (bar) bar->finish();
-    if (!rep.ok()) return report_error(rep.status());
+  opt.refine = refine;
+  std::optional<ProgressBar> bar;
+  auto exported = export_gaussians(*src, opt, [&bar, refine](int it, double loss) {
+    if (!bar) bar.emplace("refine", refine);
+    char extra[32];
+    std::snprintf(extra, sizeof extra, "loss %.4f", loss);
+    bar->update(it, extra);
+  });
+  if (bar) bar->finish();
+  if (!exported.ok()) return report_error(exported.status());
+  for (const std::string& note : exported->notes) std::fprintf(stderr, "%s\n", note.c_str());
+  if (const auto& rep = exported->refine) {
     std::string losses;  // the first and last complete passes, when there are two
     char text[96];
     if (rep->passes >= 2)
@@ -127,15 +64,17 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
       losses += ", " + std::to_string(rep->skipped) + " with a non-finite loss or gradient skipped";
     std::printf("refined on %zu training views: %d iteration%s%s, %.1f s\n", ds.train.size(),
                 rep->iterations, rep->iterations == 1 ? "" : "s", losses.c_str(),
-                std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
+                exported->refine_seconds);
   }
-  Status st = write_ply(out, baked.value());
+  const PlyGaussians& baked = exported->gaussians;
+  const double bake_s = exported->bake_seconds;
+  Status st = write_ply(out, baked);
   if (!st.ok()) return report_error(st);
   std::error_code ec;
   std::printf(
       "wrote %s: %zu Gaussians, SH degree %d (%d directions, view weight %.2f), opacity from "
       "the %s, %llu bytes, baked in %.2f s\n",
-      out.c_str(), baked->size(), degree, directions, opt.view_weight,
+      out.c_str(), baked.size(), degree, directions, exported->view_weight,
       opt.opacity_over_views ? "views" : "representative view",
       static_cast<unsigned long long>(fs::file_size(out, ec)), bake_s);
   if (ds.test.empty()) return 0;

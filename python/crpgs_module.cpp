@@ -12,6 +12,7 @@
 #include <pybind11/functional.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>  // str or os.PathLike for paths
 #include <torch/csrc/utils/pybind.h>  // torch::Tensor <-> torch.Tensor
 
 #include "crpgs/atomic_file.h"
@@ -21,6 +22,7 @@
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/image_tensor.h"
 #include "crpgs/pipeline.h"
+#include "crpgs/ply.h"
 #include "crpgs/registry.h"
 #include "crpgs/runtime.h"
 #include "crpgs/version.h"
@@ -104,6 +106,55 @@ class Model {
     const int index = src_.train_views_as_trained ? train_index : -1;
     NeuralGaussians ng = model.generate(camera, index, src_.setup->rasterizer(), settings, false);
     return src_.setup->rasterizer().render(ng.batch, camera, settings).image.contiguous();
+  }
+
+  /// `crpgs export`: bake, refine on the training photos, write the .ply (what every viewer
+  /// reads), then render it back from the file on the test views beside the anchor model.
+  py::dict export_ply(const fs::path& file, int sh_degree, int refine, const std::string& opacity,
+                      double view_weight) {
+    const std::string path = file.string();
+    if (sh_degree < 0 || sh_degree > 3) throw py::value_error("sh_degree must be 0..3");
+    if (refine < 0) throw py::value_error("refine must be >= 0");
+    if (opacity != "representative" && opacity != "views")
+      throw py::value_error("opacity must be 'representative' or 'views'");
+    ExportOptions o;
+    o.sh_degree = sh_degree;
+    o.refine = refine;
+    o.opacity_over_views = opacity == "views";
+    o.view_weight = view_weight;
+    StatusOr<ExportResult> exported = Status(StatusCode::kInternal, "not exported");
+    StatusOr<EvalResult> anchor = exported.status(), back_eval = exported.status();
+    Status written;
+    size_t gaussians = 0;
+    {
+      py::gil_scoped_release release;
+      exported = export_gaussians(src_, o);
+      if (exported.ok()) written = write_ply(path, exported->gaussians);
+      if (exported.ok() && written.ok() && !src_.setup->dataset().test.empty()) {
+        auto back = read_ply(path);  // what is measured is what was written
+        if (!back.ok()) {
+          written = back.status();
+        } else {
+          gaussians = back->size();
+          anchor = evaluate_views(src_.model(), src_.setup->rasterizer(),
+                                  src_.setup->dataset().test, "");
+          back_eval =
+              evaluate_ply(back.value(), src_.setup->rasterizer(), src_.setup->dataset().test,
+                           src_.model().options().effects.background, "");
+        }
+      }
+    }
+    const ExportResult r = value_or_raise(std::move(exported));
+    raise_if_error(written);
+    for (const std::string& note : r.notes) PyErr_WarnEx(PyExc_RuntimeWarning, note.c_str(), 1);
+    py::dict out(py::arg("path") = path, py::arg("gaussians") = r.gaussians.size(),
+                 py::arg("bytes") = fs::file_size(path),
+                 py::arg("refine_iterations") = r.refine ? r.refine->iterations : 0);
+    if (gaussians > 0) {
+      out["anchor_psnr"] = value_or_raise(std::move(anchor)).mean_psnr;
+      out["psnr"] = value_or_raise(std::move(back_eval)).mean_psnr;
+    }
+    return out;
   }
 
   /// PSNR/SSIM per test view and mean, as `crpgs eval` measures them (8-bit round trip).
@@ -325,7 +376,10 @@ PYBIND11_MODULE(_crpgs, m) {
       .def("cameras", &Model::cameras, py::arg("split") = "test")
       .def("image", &Model::image, py::arg("split"), py::arg("index"))
       .def("render", &Model::render, py::arg("camera"), py::arg("train_index") = -1)
-      .def("evaluate", &Model::evaluate, py::arg("png_dir") = "");
+      .def("evaluate", &Model::evaluate, py::arg("png_dir") = "")
+      .def("export_ply", &Model::export_ply, py::arg("path"), py::arg("sh_degree") = 3,
+           py::arg("refine") = ExportOptions{}.refine, py::arg("opacity") = "representative",
+           py::arg("view_weight") = ExportOptions{}.view_weight);
 
   m.def("train", &train, py::arg("config"), py::arg("out_dir"),
         py::arg("sets") = std::vector<std::string>{}, py::arg("progress") = py::none(),

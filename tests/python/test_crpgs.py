@@ -102,6 +102,22 @@ def test_python_and_cli_agree_on_the_run_and_on_encoding_at_another_rate(trained
     assert rc == 0, log
 
 
+def test_export_from_python_writes_the_clis_ply_byte_for_byte(trained):
+    d, _, _ = trained
+    rc, log = cli("export", d / "run" / "scene.crpgs", "-o", d / "cli.ply", "--refine", 3,
+                  "--threads", 1)
+    assert rc == 0, log
+    model = crpgs.open(d / "run" / "scene.crpgs", threads=1)
+    out = model.export_ply(d / "py.ply", refine=3)
+    assert (d / "py.ply").read_bytes() == (d / "cli.ply").read_bytes()
+    assert out["gaussians"] > 0 and out["bytes"] == os.path.getsize(d / "py.ply")
+    assert out["refine_iterations"] == 3
+    mean = [line.split() for line in log.splitlines() if line.startswith("mean")][0]
+    assert abs(out["anchor_psnr"] - float(mean[1])) < 5e-4 and abs(out["psnr"] - float(mean[2])) < 5e-4
+    with pytest.raises(ValueError, match="sh_degree"):
+        model.export_ply(d / "bad.ply", sh_degree=4)
+
+
 def test_errors_raise_crpgs_error_with_the_sdks_message(tmp_path):
     with pytest.raises(crpgs.Error, match="no such file or directory"):
         crpgs.open(tmp_path / "missing.crpgs")

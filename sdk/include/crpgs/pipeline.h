@@ -7,6 +7,7 @@
 #pragma once
 
 #include <array>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -16,6 +17,7 @@
 #include "crpgs/codec.h"
 #include "crpgs/config.h"
 #include "crpgs/experiments/run_metrics.h"
+#include "crpgs/gaussian_export.h"
 #include "crpgs/link_report.h"
 #include "crpgs/registry.h"
 #include "crpgs/trainer.h"
@@ -74,6 +76,37 @@ Status not_a_model_source(const std::string& source);
 /// libtorch's threads, train.threads and the rasterizer's threads; 0 keeps the config's.
 StatusOr<ModelSource> load_model_source(const ComponentRegistry& r, const std::string& source,
                                         const std::vector<std::string>& sets, int threads);
+
+/// What `crpgs export` makes of a model: a bake, then a fit to the training photos
+/// (bench/results/export_360.md).
+struct ExportOptions {
+  int sh_degree = 3;
+  int directions = BakeOptions{}.directions;
+  double view_weight = BakeOptions{}.view_weight;
+  bool opacity_over_views = BakeOptions{}.opacity_over_views;
+  int refine = 200;  ///< refine_gaussians iterations on the training views; 0 = the bake alone
+};
+struct ExportResult {
+  PlyGaussians gaussians;
+  double view_weight = 0;  ///< as used: 0 when the dataset has no training views
+  double bake_seconds = 0, refine_seconds = 0;
+  std::optional<RefineReport> refine;  ///< when refined
+  std::vector<std::string> notes;      ///< "note: ..." / "warning: ..." for the user
+};
+/// Bakes the source's model into standard 3DGS Gaussians (its bitstream rows when it has them;
+/// SH fitted over the training cameras' views and a sphere of directions) and refines them on
+/// the training photos. Refining needs training views (kInvalidArgument before baking).
+/// `on_refine_iteration(iteration, loss)` follows the fit.
+StatusOr<ExportResult> export_gaussians(
+    ModelSource& source, const ExportOptions& options,
+    const std::function<void(int, double)>& on_refine_iteration = {});
+
+/// Renders .ply Gaussians on `views` and measures them as evaluate_views does (8-bit PNG round
+/// trip); PNGs go to png_dir when set.
+StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterizer,
+                                  const std::vector<View>& views,
+                                  const std::array<float, 3>& background,
+                                  const std::string& png_dir);
 
 /// What writing a trained model's bitstream and checking it produced.
 struct BitstreamReport {

@@ -13,7 +13,10 @@
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
+#include "crpgs/image.h"
+#include "crpgs/image_tensor.h"
 #include "crpgs/link_report.h"
+#include "crpgs/metrics.h"
 #include "crpgs/runtime.h"
 
 namespace crpgs {
@@ -293,6 +296,87 @@ StatusOr<std::unique_ptr<AnchorModel>> read_decoded_model(const std::string& pat
   } catch (const std::exception& e) {
     return Status(StatusCode::kCorruptBitstream, "reading " + path + ": " + e.what());
   }
+}
+
+StatusOr<EvalResult> evaluate_ply(const PlyGaussians& ply, Rasterizer& rasterizer,
+                                  const std::vector<View>& views,
+                                  const std::array<float, 3>& background,
+                                  const std::string& png_dir) {
+  torch::NoGradGuard no_grad;
+  if (views.empty()) return Status(StatusCode::kInvalidArgument, "evaluation: no test views");
+  if (std::error_code ec; !png_dir.empty() && !fs::create_directories(png_dir, ec) && ec)
+    return Status(StatusCode::kIoError, "cannot create " + png_dir + ": " + ec.message());
+  RenderSettings settings;
+  settings.background = background;
+  EvalResult res;
+  double seconds = 0;
+  for (size_t i = 0; i < views.size(); ++i) {
+    const View& v = views[i];
+    const auto t0 = std::chrono::steady_clock::now();
+    auto img = rasterizer.render(ply_to_batch(ply, v.camera), v.camera, settings).image;
+    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const Image render = quantize_8bit(tensor_to_image(img));
+    CRPGS_ASSIGN_OR_RETURN(ImageMetrics m, compare_images(render, quantize_8bit(v.image)));
+    ViewMetrics vm;
+    vm.name = v.camera.name;
+    vm.psnr = m.psnr;
+    vm.ssim = m.ssim;
+    res.views.push_back(vm);
+    res.mean_psnr += m.psnr / double(views.size());
+    res.mean_ssim += m.ssim / double(views.size());
+    if (!png_dir.empty()) {
+      char name[32];
+      std::snprintf(name, sizeof name, "test_%05zu.png", i);
+      CRPGS_RETURN_IF_ERROR(save_png(render, (fs::path(png_dir) / name).string()));
+    }
+  }
+  res.seconds_per_view = seconds / double(views.size());
+  return res;
+}
+
+StatusOr<ExportResult> export_gaussians(ModelSource& src, const ExportOptions& o,
+                                        const std::function<void(int, double)>& on_refine) {
+  AnchorModel& model = src.model();
+  const Dataset& ds = src.setup->dataset();
+  ExportResult out;
+  BakeOptions opt;
+  opt.sh_degree = o.sh_degree;
+  opt.directions = o.directions;
+  opt.view_weight = o.view_weight;
+  opt.opacity_over_views = o.opacity_over_views;
+  for (const auto& v : ds.train) opt.camera_centers.push_back(v.camera.center());
+  if (opt.camera_centers.empty()) {
+    // The test views then give the representative views only: fitting the colours they see
+    // would make the PSNR measured on them below optimistic.
+    for (const auto& v : ds.test) opt.camera_centers.push_back(v.camera.center());
+    opt.view_weight = 0;
+    out.notes.push_back("note: no training views; SH fitted on the sphere alone");
+  }
+  out.view_weight = opt.view_weight;
+  if (o.refine > 0 && ds.train.empty())  // before the bake, which may take a while
+    return Status(StatusCode::kInvalidArgument,
+                  "--refine needs the training views, and the dataset has none");
+  if (o.refine > 0 && !src.train_views_as_trained)
+    out.notes.push_back(
+        "warning: --set changed the train/test split: --refine fits the new training views, and "
+        "the model may have been trained on the test views measured below");
+  using clock = std::chrono::steady_clock;
+  const auto t0 = clock::now();
+  CRPGS_ASSIGN_OR_RETURN(out.gaussians,
+                         bake_gaussians(model, opt, src.quantized ? &src.q : nullptr));
+  out.bake_seconds = std::chrono::duration<double>(clock::now() - t0).count();
+  if (o.refine > 0) {
+    RefineOptions ro;
+    ro.iterations = o.refine;
+    ro.lambda_dssim = src.setup->options().lambda_dssim;  // the model's own training loss
+    ro.seed = src.setup->options().seed;
+    const auto t1 = clock::now();
+    CRPGS_ASSIGN_OR_RETURN(out.refine,
+                           refine_gaussians(out.gaussians, src.setup->rasterizer(), ds.train,
+                                            model.options().effects.background, ro, on_refine));
+    out.refine_seconds = std::chrono::duration<double>(clock::now() - t1).count();
+  }
+  return out;
 }
 
 StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cfg,
