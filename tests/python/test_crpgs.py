@@ -153,6 +153,24 @@ def test_an_exception_in_the_callback_stops_training_with_a_checkpoint(tmp_path)
     assert os.path.getsize(out["bitstream"]["path"]) == out["bitstream"]["bytes"]
 
 
+def test_ctrl_c_stops_training_with_a_checkpoint(tmp_path):
+    """A real SIGINT (as Ctrl-C sends) during crpgs.train: KeyboardInterrupt after a checkpoint."""
+    (tmp_path / "tiny.yaml").write_text(CONFIG)
+    script = (
+        "import os, signal, crpgs\n"
+        "def progress(r):\n"
+        "    if r['iteration'] == 3: os.kill(os.getpid(), signal.SIGINT)\n"
+        "try:\n"
+        f"    crpgs.train({str(tmp_path / 'tiny.yaml')!r}, {str(tmp_path / 'run')!r}, progress=progress)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n")
+    r = subprocess.run([os.sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0 and "interrupted" in r.stdout, r.stdout + r.stderr
+    assert (tmp_path / "run" / "checkpoint.pt").exists()
+    assert not (tmp_path / "run" / "scene.crpgs").exists()
+
+
 def test_bd_figures_and_metrics(trained):
     anchor = [(1000, 30.0), (2000, 31.0), (4000, 32.0)]
     test = [(s * 0.8, p) for s, p in anchor]
