@@ -61,57 +61,25 @@ class CliProgress final : public ProgressCallback {
 /// `method` names the run in metrics.json; empty: the config's file name ("demo" for the demo).
 /// `prefix_dir`: shared training prefixes (SetupOptions::prefix_dir); "" = off.
 /// `start_from`: another run's checkpoint to continue from under this config (SetupOptions).
-int run_training(const Config& cfg, const ComponentRegistry& registry, const std::string& out_dir,
-                 bool resume, const std::string& method = "", const std::string& prefix_dir = "",
-                 bool replace = true, const std::string& start_from = "") {
-  // What the lock adds (the directory, DIR/.lock) goes again if the set-up fails: a mistyped
-  // path leaves the file system as it was.
-  std::error_code ec;
-  const bool dir_existed = fs::exists(out_dir, ec),
-             lock_existed = fs::exists(out_dir + "/.lock", ec);
-  auto fail_before_training = [&](const Status& st) {
-    if (!lock_existed) fs::remove(out_dir + "/.lock", ec);
-    if (!dir_existed) fs::remove(out_dir, ec);  // only when empty: nothing else was written
-    return report_error(st);
-  };
-  // Held until this process ends: a second `crpgs train -o` here is refused before it writes.
-  auto lock = lock_directory(out_dir);
-  if (!lock.ok()) return report_error(lock.status());
-  if (!lock->held())
-    std::fprintf(stderr, "warning: %s cannot be locked here; make sure no other run writes there\n",
-                 out_dir.c_str());
+int run_training(const Config& cfg, const ComponentRegistry& registry, const RunOptions& run) {
+  const std::string& out_dir = run.out_dir;
   // `scancel --signal=USR1` during set-up or the final encode must not end the run.
   std::signal(SIGUSR1, SIG_IGN);
-  if (lock->held())  // nobody else writes here: a killed attempt's half-written files can go
-    if (const int n = remove_stale_temp_files(out_dir); n > 0)
-      std::printf("removed %d half-written file(s) of an earlier, killed attempt\n", n);
-  if (!resume && !replace)
-    for (const char* kept : {"checkpoint.pt", "metrics.json"})
-      if (std::error_code ec; fs::exists(out_dir + "/" + kept, ec))
-        return fail_before_training(Status(
-            StatusCode::kInvalidArgument,
-            out_dir + " holds a run (" + kept +
-                "): --resume continues it, --force trains a new one over it, or pick another -o"));
-  // Nothing in the directory changes until the set-up (dataset, plugins, checkpoint) succeeded:
-  // a typo in a path must not cost a finished run its results.
-  SetupOptions setup{out_dir, resume, prefix_dir};
-  setup.start_from = start_from;
-  auto trainer = setup_training_and_warn(cfg, registry, setup);
-  if (!trainer.ok()) return fail_before_training(trainer.status());
-  Trainer& t = *trainer.value();
+  auto prepared = prepare_run_directory(cfg, registry, run);
+  if (!prepared.ok()) return report_error(prepared.status());
+  if (!prepared->lock.held())
+    std::fprintf(stderr, "warning: %s cannot be locked here; make sure no other run writes there\n",
+                 out_dir.c_str());
+  if (const int n = prepared->stale_files_removed; n > 0)
+    std::printf("removed %d half-written file(s) of an earlier, killed attempt\n", n);
+  Trainer& t = *prepared->trainer;
+  for (const std::string& w : t.dataset().warnings)
+    std::fprintf(stderr, "warning: %s\n", w.c_str());
   for (const std::string& w : t.setting_warnings())
     std::fprintf(stderr, "warning: %s\n", w.c_str());
-  // Training anew: an earlier run's files go now, or a run killed before its first checkpoint
-  // would leave the old one for a later --resume (or a sweep) to take for its own.
-  if (!resume)
-    for (const char* old : {"checkpoint.pt", "metrics.json", "scene.crpgs"})
-      if (std::error_code ec; fs::remove(fs::path(out_dir) / old, ec), ec)
-        return report_error(
-            Status(StatusCode::kIoError,
-                   "cannot remove the earlier run's " + out_dir + "/" + old + ": " + ec.message()));
-  Status st = experiments::mark_run_started(out_dir);
-  if (st.ok()) st = cfg.save(out_dir + "/config.yaml");
-  if (!st.ok()) return report_error(st);
+  const bool resume = run.resume;
+  const std::string& start_from = run.start_from;
+  Status st;
   std::printf("resolved config: %s/config.yaml\n", out_dir.c_str());
   std::printf("scene: %zu train / %zu test views of %dx%d, %lld anchors\n",
               t.dataset().train.size(), t.dataset().test.size(),
@@ -183,36 +151,16 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const std
     }
   }
 
-  experiments::RunMetrics m;
+  BitstreamReport rep;
+  EvalResult eval;
+  auto m = finish_run(t, cfg, registry, run, &rep, &eval);
+  if (!m.ok()) return report_error(m.status());
   if (t.model().has_rate()) {
-    // HAC/CRP-GS: the result is the bitstream; everything reported comes from decoding it.
-    auto rep =
-        write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/test");
-    if (!rep.ok()) return report_error(rep.status());
-    print_bitstream_report(rep.value());
-    m = bitstream_metrics(rep.value(), cfg);
+    print_bitstream_report(rep);
   } else {
-    auto eval = t.evaluate(out_dir + "/test");
-    if (!eval.ok()) return report_error(eval.status());
     std::printf("test views (PNGs in %s/test/renders and gt):\n", out_dir.c_str());
-    print_eval(eval.value());
-    for (const auto& v : eval->views)
-      m.views.push_back({v.name, v.psnr, v.ssim, eval->seconds_per_view});
+    print_eval(eval);
   }
-  m.method = !method.empty()                              ? method
-             : cfg.file().empty() || cfg.file()[0] == '<' ? "demo"
-                                                          : fs::path(cfg.file()).stem().string();
-  m.dataset = t.dataset().name;
-  m.config_hash = hex64(cfg.hash());
-  m.train_seconds = train_s;
-  for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
-  if (!m.trace.empty()) m.trace_views = t.trace_views();
-  m.peak_memory_bytes = experiments::peak_rss_bytes();
-  m.provenance = experiments::this_process_provenance(int64_t(t.options().seed),
-                                                      at::get_num_threads(), t.options().device);
-  st = experiments::write_run_metrics(out_dir + "/metrics.json", m);
-  if (!st.ok()) return report_error(st);
-  experiments::mark_run_finished(out_dir);
   std::printf("metrics: %s/metrics.json\n", out_dir.c_str());
   return 0;
 }
@@ -270,8 +218,14 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     if (!start_from.empty() && !fs::is_regular_file(start_from))
       throw CLI::RuntimeError(report_error(Status(
           StatusCode::kNotFound, "--from " + from + ": no checkpoint there (" + start_from + ")")));
-    throw CLI::RuntimeError(
-        run_training(cfg.value(), r, out_dir, resume, method, prefix_dir, force, start_from));
+    RunOptions run;
+    run.out_dir = out_dir;
+    run.resume = resume;
+    run.replace = force;
+    run.method = method;
+    run.prefix_dir = prefix_dir;
+    run.start_from = start_from;
+    throw CLI::RuntimeError(run_training(cfg.value(), r, run));
   });
 
   auto* eval = app.add_subcommand(
@@ -334,7 +288,9 @@ void add_train_commands(CLI::App& app, GlobalOptions& g) {
     std::printf(
         "crpgs demo: synthetic scene -> train (fast schedule) -> bitstream -> decode -> "
         "evaluate the decoded model\n");
-    throw CLI::RuntimeError(run_training(cfg.value(), r, out_dir, false));
+    RunOptions run;
+    run.out_dir = out_dir;
+    throw CLI::RuntimeError(run_training(cfg.value(), r, run));
   });
 }
 

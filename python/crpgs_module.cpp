@@ -233,38 +233,43 @@ py::dict bitstream_dict(const BitstreamReport& r) {
                   py::arg("decode_seconds") = r.decode_seconds);
 }
 
-/// Trains `config` (with `sets`) into out_dir: checkpoints there, the resolved config.yaml, and
-/// for the rate path the bitstream scene.crpgs, written and checked (decoded, evaluated).
+/// Trains `config` (with `sets`) into out_dir as `crpgs train -o` does (prepare_run_directory,
+/// then finish_run): checkpoints, config.yaml, for the rate path scene.crpgs written and
+/// checked, and metrics.json.
 py::dict train(const std::string& config, const std::string& out_dir,
                const std::vector<std::string>& sets, const py::object& progress, bool resume,
-               const std::vector<std::string>& plugin_dirs) {
+               const std::string& method, const std::vector<std::string>& plugin_dirs) {
   const ComponentRegistry r = registry_with(plugin_dirs);
   const Config cfg = value_or_raise(load_config(config, sets, r));
-  auto lock = value_or_raise(lock_directory(out_dir));  // another process training there: refused
-  auto trainer = value_or_raise(setup_training(cfg, r, SetupOptions{out_dir, resume}));
-  for (const std::string& w : trainer->dataset().warnings)
+  RunOptions run;
+  run.out_dir = out_dir;
+  run.resume = resume;
+  run.method = method;
+  PreparedRun prepared = value_or_raise(prepare_run_directory(cfg, r, run));
+  Trainer& t = *prepared.trainer;
+  for (const std::string& w : t.dataset().warnings)
     PyErr_WarnEx(PyExc_RuntimeWarning, w.c_str(), 1);
-  raise_if_error(cfg.save(out_dir + "/config.yaml"));
+  for (const std::string& w : t.setting_warnings())
+    PyErr_WarnEx(PyExc_RuntimeWarning, w.c_str(), 1);
   TrainControl control;
   PythonProgress callback(progress, &control);
   Status st;
   {
     py::gil_scoped_release release;
-    st = trainer->train(&callback, &control);
+    st = t.train(&callback, &control);
   }
   callback.rethrow();
   raise_if_error(st);
-  py::dict out(py::arg("iterations") = trainer->iteration(),
-               py::arg("seconds") = trainer->elapsed_seconds(),
-               py::arg("checkpoint") = trainer->checkpoint_path());
-  if (trainer->model().has_rate()) {
-    StatusOr<BitstreamReport> rep = Status(StatusCode::kInternal, "not written");
-    {
-      py::gil_scoped_release release;
-      rep = write_and_check_bitstream(*trainer, cfg, r, out_dir + "/scene.crpgs", "");
-    }
-    out["bitstream"] = bitstream_dict(value_or_raise(std::move(rep)));
+  BitstreamReport rep;
+  StatusOr<experiments::RunMetrics> m = Status(StatusCode::kInternal, "not finished");
+  {
+    py::gil_scoped_release release;
+    m = finish_run(t, cfg, r, run, &rep);
   }
+  py::dict out(py::arg("iterations") = t.iteration(), py::arg("seconds") = t.elapsed_seconds(),
+               py::arg("checkpoint") = t.checkpoint_path(),
+               py::arg("metrics_json") = experiments::to_json(value_or_raise(std::move(m))));
+  if (t.model().has_rate()) out["bitstream"] = bitstream_dict(rep);
   return out;
 }
 
@@ -383,7 +388,8 @@ PYBIND11_MODULE(_crpgs, m) {
 
   m.def("train", &train, py::arg("config"), py::arg("out_dir"),
         py::arg("sets") = std::vector<std::string>{}, py::arg("progress") = py::none(),
-        py::arg("resume") = false, py::arg("plugin_dirs") = std::vector<std::string>{});
+        py::arg("resume") = false, py::arg("method") = "",
+        py::arg("plugin_dirs") = std::vector<std::string>{});
   m.def("encode", &encode, py::arg("run_dir"), py::arg("out"), py::arg("rate_scale") = 1.0,
         py::arg("plugin_dirs") = std::vector<std::string>{});
   m.def("info", &info, py::arg("path"), py::arg("plugin_dirs") = std::vector<std::string>{});

@@ -47,15 +47,19 @@ def _paths(ps):
     return dirs
 
 
-def train(config, out_dir, sets=(), progress=None, resume=False, plugin_dirs=()):
+def train(config, out_dir, sets=(), progress=None, resume=False, method="", plugin_dirs=()):
     """Trains `config` (a YAML file; "key=value" overrides in `sets`) into out_dir: checkpoints,
     the resolved config.yaml and, on the rate path, the bitstream scene.crpgs, written and
     checked (decoded and evaluated). progress(report) is called every iteration with a dict
     (iteration, total, loss, test_psnr, anchors, gaussians, iterations_per_second); an exception
     it raises, or Ctrl-C, stops training with a checkpoint (resume=True continues) and is raised.
-    Returns {iterations, seconds, checkpoint[, bitstream: {path, bytes, psnr, ...}]}."""
-    return _crpgs.train(str(config), str(out_dir), list(sets), progress, resume,
-                        _paths(plugin_dirs))
+    out_dir ends as `crpgs train -o out_dir` leaves it (metrics.json too; `method` names the run
+    there, default the config file's name). Returns {iterations, seconds, checkpoint, metrics
+    (metrics.json as a dict)[, bitstream: {path, bytes, psnr, ...}]}."""
+    out = _crpgs.train(str(config), str(out_dir), list(sets), progress, resume, method,
+                       _paths(plugin_dirs))
+    out["metrics"] = _json.loads(out.pop("metrics_json"))
+    return out
 
 
 def encode(run_dir, out, rate_scale=1.0, plugin_dirs=()):

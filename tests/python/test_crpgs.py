@@ -56,6 +56,12 @@ def test_train_reports_progress_and_writes_a_checked_bitstream(trained):
     assert b["path"] == str(d / "run" / "scene.crpgs")
     assert b["bytes"] == os.path.getsize(b["path"]) > 0
     assert b["psnr"] > 10
+    # metrics.json as the CLI writes it, and the run directory a `crpgs train` run would be.
+    m = crpgs.read_metrics(d / "run")
+    assert m == out["metrics"]
+    assert m["size_bytes"] == b["bytes"] and m["method"] == "tiny"
+    assert abs(m["psnr_mean"] - b["psnr"]) < 1e-9
+    assert (d / "run" / "config.yaml").exists() and not (d / "run" / ".running").exists()
 
 
 def test_a_bitstream_written_from_python_decodes_in_the_cli(trained):

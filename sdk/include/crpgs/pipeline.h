@@ -16,6 +16,7 @@
 
 #include "crpgs/codec.h"
 #include "crpgs/config.h"
+#include "crpgs/dir_lock.h"
 #include "crpgs/experiments/run_metrics.h"
 #include "crpgs/gaussian_export.h"
 #include "crpgs/link_report.h"
@@ -141,5 +142,34 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Conf
 /// metrics.json's fields of a written and checked bitstream: λ, size and its breakdown, coded
 /// anchors and Gaussians, codec times, the decoded model's test views.
 experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config);
+
+/// A training run in a directory, as `crpgs train -o DIR` and crpgs.train make one.
+struct RunOptions {
+  std::string out_dir;
+  bool resume = false;     ///< continue DIR's checkpoint
+  bool replace = true;     ///< false: refuse a directory that holds a run (unless resume)
+  std::string method;      ///< the run's name in metrics.json; "" = the config file's stem
+  std::string prefix_dir;  ///< shared training prefixes (SetupOptions::prefix_dir); "" = off
+  std::string start_from;  ///< another run's checkpoint to continue under this config
+};
+/// A run directory ready to train: locked for this process, its trainer set up, and — only
+/// once the set-up succeeded, so that a mistyped path costs nothing — an earlier run's results
+/// removed (unless resuming), the run marked started and the resolved config saved.
+struct PreparedRun {
+  DirectoryLock lock;
+  std::unique_ptr<Trainer> trainer;
+  int stale_files_removed = 0;  ///< half-written files of an earlier, killed attempt
+};
+/// What a failed set-up adds (the directory, DIR/.lock) goes again.
+StatusOr<PreparedRun> prepare_run_directory(const Config& config, const ComponentRegistry& registry,
+                                            const RunOptions& options);
+/// After training: on the rate path the bitstream DIR/scene.crpgs written and checked
+/// (`bitstream`, when given, receives the report), else the test views evaluated (`eval`); then
+/// DIR/metrics.json (written atomically) and the run marked finished.
+StatusOr<experiments::RunMetrics> finish_run(Trainer& trainer, const Config& config,
+                                             const ComponentRegistry& registry,
+                                             const RunOptions& options,
+                                             BitstreamReport* bitstream = nullptr,
+                                             EvalResult* eval = nullptr);
 
 }  // namespace crpgs

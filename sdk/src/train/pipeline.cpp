@@ -3,6 +3,8 @@
 /// from what a user points at, bitstreams written and checked, decoded-model files.
 #include "crpgs/pipeline.h"
 
+#include <ATen/Parallel.h>
+
 #include <chrono>
 #include <cstring>
 #include <filesystem>
@@ -13,6 +15,7 @@
 
 #include "crpgs/atomic_file.h"
 #include "crpgs/components.h"
+#include "crpgs/hashing.h"
 #include "crpgs/image.h"
 #include "crpgs/image_tensor.h"
 #include "crpgs/link_report.h"
@@ -460,6 +463,84 @@ experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config
   for (size_t i = 0; i < r.view_names.size(); ++i)
     m.views.push_back(
         {r.view_names[i], r.decoded_views[i][0], r.decoded_views[i][1], r.decoded_views[i][2]});
+  return m;
+}
+
+StatusOr<PreparedRun> prepare_run_directory(const Config& cfg, const ComponentRegistry& registry,
+                                            const RunOptions& o) {
+  const std::string& out_dir = o.out_dir;
+  // What the lock adds (the directory, DIR/.lock) goes again if the set-up fails: a mistyped
+  // path leaves the file system as it was.
+  std::error_code ec;
+  const bool dir_existed = fs::exists(out_dir, ec),
+             lock_existed = fs::exists(out_dir + "/.lock", ec);
+  auto undo = [&](const Status& st) {
+    if (!lock_existed) fs::remove(out_dir + "/.lock", ec);
+    if (!dir_existed) fs::remove(out_dir, ec);  // only when empty: nothing else was written
+    return st;
+  };
+  // Held until the run is done: a second trainer here is refused before it writes.
+  CRPGS_ASSIGN_OR_RETURN(DirectoryLock lock, lock_directory(out_dir));
+  PreparedRun run{std::move(lock), nullptr, 0};
+  if (run.lock.held())  // nobody else writes here: a killed attempt's half-written files can go
+    run.stale_files_removed = remove_stale_temp_files(out_dir);
+  if (!o.resume && !o.replace)
+    for (const char* kept : {"checkpoint.pt", "metrics.json"})
+      if (fs::exists(out_dir + "/" + kept, ec))
+        return undo(Status(
+            StatusCode::kInvalidArgument,
+            out_dir + " holds a run (" + kept +
+                "): --resume continues it, --force trains a new one over it, or pick another -o"));
+  // Nothing in the directory changes until the set-up (dataset, plugins, checkpoint) succeeded:
+  // a typo in a path must not cost a finished run its results.
+  SetupOptions setup{out_dir, o.resume, o.prefix_dir};
+  setup.start_from = o.start_from;
+  auto trainer = setup_training(cfg, registry, setup);
+  if (!trainer.ok()) return undo(trainer.status());
+  run.trainer = std::move(trainer).value();
+  // Training anew: an earlier run's files go now, or a run killed before its first checkpoint
+  // would leave the old one for a later resume (or a sweep) to take for its own.
+  if (!o.resume)
+    for (const char* old : {"checkpoint.pt", "metrics.json", "scene.crpgs"})
+      if (fs::remove(fs::path(out_dir) / old, ec), ec)
+        return Status(StatusCode::kIoError, "cannot remove the earlier run's " + out_dir + "/" +
+                                                old + ": " + ec.message());
+  CRPGS_RETURN_IF_ERROR(experiments::mark_run_started(out_dir));
+  CRPGS_RETURN_IF_ERROR(cfg.save(out_dir + "/config.yaml"));
+  return run;
+}
+
+StatusOr<experiments::RunMetrics> finish_run(Trainer& t, const Config& cfg,
+                                             const ComponentRegistry& registry, const RunOptions& o,
+                                             BitstreamReport* bitstream, EvalResult* eval) {
+  const std::string& out_dir = o.out_dir;
+  const double train_s = t.elapsed_seconds();  // resumed runs included, evaluation excluded
+  experiments::RunMetrics m;
+  if (t.model().has_rate()) {
+    // HAC/CRP-GS: the result is the bitstream; everything reported comes from decoding it.
+    CRPGS_ASSIGN_OR_RETURN(
+        BitstreamReport rep,
+        write_and_check_bitstream(t, cfg, registry, out_dir + "/scene.crpgs", out_dir + "/test"));
+    m = bitstream_metrics(rep, cfg);
+    if (bitstream) *bitstream = std::move(rep);
+  } else {
+    CRPGS_ASSIGN_OR_RETURN(EvalResult ev, t.evaluate(out_dir + "/test"));
+    for (const auto& v : ev.views) m.views.push_back({v.name, v.psnr, v.ssim, ev.seconds_per_view});
+    if (eval) *eval = std::move(ev);
+  }
+  m.method = !o.method.empty()                            ? o.method
+             : cfg.file().empty() || cfg.file()[0] == '<' ? "demo"
+                                                          : fs::path(cfg.file()).stem().string();
+  m.dataset = t.dataset().name;
+  m.config_hash = hex64(cfg.hash());
+  m.train_seconds = train_s;
+  for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
+  if (!m.trace.empty()) m.trace_views = t.trace_views();
+  m.peak_memory_bytes = experiments::peak_rss_bytes();
+  m.provenance = experiments::this_process_provenance(int64_t(t.options().seed),
+                                                      at::get_num_threads(), t.options().device);
+  CRPGS_RETURN_IF_ERROR(experiments::write_run_metrics(out_dir + "/metrics.json", m));
+  experiments::mark_run_finished(out_dir);
   return m;
 }
 
