@@ -62,13 +62,15 @@ int report_error(const Status& st) {
   return 1;
 }
 
+void print_dataset_warnings(const Dataset& d) {
+  for (const std::string& w : d.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
+}
+
 StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,
                                                            const ComponentRegistry& registry,
                                                            const SetupOptions& options) {
   auto trainer = setup_training(cfg, registry, options);
-  if (trainer.ok())
-    for (const std::string& w : trainer.value()->dataset().warnings)
-      std::fprintf(stderr, "warning: %s\n", w.c_str());
+  if (trainer.ok()) print_dataset_warnings(trainer.value()->dataset());
   return trainer;
 }
 
@@ -92,9 +94,7 @@ Status check_output_is_not_input(const std::string& out, const std::string& sour
 StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentRegistry& r,
                                         const std::string& source, int threads) {
   auto s = crpgs::load_model_source(r, source, g.sets, threads);
-  if (s.ok())
-    for (const std::string& w : s->setup->dataset().warnings)
-      std::fprintf(stderr, "warning: %s\n", w.c_str());
+  if (s.ok()) print_dataset_warnings(s->setup->dataset());
   return s;
 }
 

@@ -51,6 +51,9 @@ inline CLI::Option* add_threads_option(CLI::App* cmd, int& threads) {
 Status check_output_is_not_input(const std::string& out, const std::string& source,
                                  const std::string& own_output = "");
 
+/// The dataset's warnings (ignored lens distortion, no SfM points, ...) on stderr: the SDK only
+/// collects them.
+void print_dataset_warnings(const Dataset& d);
 /// setup_training, then the dataset's warnings (ignored lens distortion, no SfM points, ...) on
 /// stderr: the SDK only collects them.
 StatusOr<std::unique_ptr<Trainer>> setup_training_and_warn(const Config& cfg,

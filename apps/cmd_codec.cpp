@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <optional>
 
 #include <ATen/Parallel.h>
 
@@ -154,65 +155,26 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   return 0;
 }
 
-/// The rate scale of the best-quality file at or under `target` bytes: the smallest scale whose
-/// file fits (the steps grow with the scale, so the size falls with it), by bisection on
-/// log(scale) over [1/16, 256] with in-memory encodes.
-StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t target) {
-  t.model().to(torch::kCPU);
-  auto size_at = [&](double scale) -> StatusOr<uint64_t> {
-    CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), nullptr, scale));
-    CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
-                           encode_model(coded, cfg, codec_components_of(t.model())));
-    return uint64_t(enc.bytes.size());
-  };
-  double lo = 1.0 / 16, hi = 256;  // log-scale bracket: size(hi) <= target < size(lo)
-  CRPGS_ASSIGN_OR_RETURN(const uint64_t smallest, size_at(hi));
-  if (smallest > target)
-    return Status(StatusCode::kInvalidArgument,
-                  "--target-size " + std::to_string(target) +
-                      " B is below what this model reaches: " + std::to_string(smallest) +
-                      " B at rate scale " + std::to_string(int(hi)) +
-                      " (positions, MLPs, grids and masks do not shrink with the steps); train "
-                      "with a larger rate.lambda for a smaller file");
-  CRPGS_ASSIGN_OR_RETURN(const uint64_t largest, size_at(lo));
-  if (largest <= target) return lo;  // the finest steps searched fit
-  for (int i = 0; i < 24 && hi / lo > 1.0005; ++i) {
-    const double mid = std::sqrt(lo * hi);
-    CRPGS_ASSIGN_OR_RETURN(const uint64_t size, size_at(mid));
-    (size <= target ? hi : lo) = mid;
-  }
-  return hi;
-}
-
-/// The trainer of a finished run, for re-encoding it.
-StatusOr<std::unique_ptr<Trainer>> trained_run(const GlobalOptions& g, const std::string& run_dir,
-                                               const ComponentRegistry& r, Config* cfg) {
-  CRPGS_ASSIGN_OR_RETURN(*cfg, load_config(run_dir + "/config.yaml", g.sets, r));
-  CRPGS_RETURN_IF_ERROR(check_dataset(*cfg));
-  CRPGS_ASSIGN_OR_RETURN(std::unique_ptr<Trainer> t,
-                         setup_training_and_warn(*cfg, r, reading_setup(run_dir)));
-  if (t->iteration() == 0) return Status(StatusCode::kNotFound, "no checkpoint in " + run_dir);
-  return t;
-}
-
 int encode_run(const GlobalOptions& g, const std::string& run_dir, const std::string& out,
                double rate_scale, const std::string& target_size) {
   ComponentRegistry r = load_registry(g);
   if (Status st = check_output_is_not_input(out, run_dir, "scene.crpgs"); !st.ok())
     return report_error(st);
-  Config cfg;
-  auto trainer = trained_run(g, run_dir, r, &cfg);
-  if (!trainer.ok()) return report_error(trainer.status());
+  auto run = open_finished_run(r, run_dir, g.sets);
+  if (!run.ok()) return report_error(run.status());
+  print_dataset_warnings(run->trainer->dataset());
+  Config& cfg = run->config;
+  auto& trainer = run->trainer;
   uint64_t target = 0;
   if (!target_size.empty()) {
     auto parsed = parse_byte_size(target_size);
     if (!parsed.ok()) return report_error(parsed.status());
     target = parsed.value();
-    auto scale = scale_for_target_size(*trainer.value(), cfg, target);
+    auto scale = scale_for_target_size(*trainer, cfg, target);
     if (!scale.ok()) return report_error(scale.status());
     rate_scale = scale.value();
   }
-  auto rep = write_and_check_bitstream(*trainer.value(), cfg, r, out, "", rate_scale);
+  auto rep = write_and_check_bitstream(*trainer, cfg, r, out, "", rate_scale);
   if (!rep.ok()) return report_error(rep.status());
   print_bitstream_report(rep.value());
   if (target > 0)
@@ -235,23 +197,25 @@ int encode_rates(const GlobalOptions& g, const std::string& run_dir,
   if (!std::isnan(base->rate_scale))
     return report_error(Status(StatusCode::kInvalidArgument,
                                run_dir + " is itself a re-encoded file, not a training run"));
-  Config cfg;
-  std::unique_ptr<Trainer> trainer;
+  std::optional<FinishedRun> run;
   for (double s : scales) {
     const fs::path dir = experiments::rate_scale_dir(run_dir, s);
     if (experiments::read_run_metrics((dir / "metrics.json").string()).ok()) {
       std::printf("rate scale %g: done before (%s), kept\n", s, dir.c_str());
       continue;
     }
-    if (!trainer) {  // loaded once, and only when a scale needs it
-      auto t = trained_run(g, run_dir, r, &cfg);
-      if (!t.ok()) return report_error(t.status());
-      trainer = std::move(t).value();
+    if (!run) {  // loaded once, and only when a scale needs it
+      auto opened = open_finished_run(r, run_dir, g.sets);
+      if (!opened.ok()) return report_error(opened.status());
+      run = std::move(opened).value();
+      print_dataset_warnings(run->trainer->dataset());
     }
+    Config& cfg = run->config;
+    Trainer& trainer = *run->trainer;
     std::error_code ec;
     fs::create_directories(dir, ec);
     if (ec) return report_error(Status(StatusCode::kIoError, "cannot create " + dir.string()));
-    auto rep = write_and_check_bitstream(*trainer, cfg, r, (dir / "scene.crpgs").string(), "", s);
+    auto rep = write_and_check_bitstream(trainer, cfg, r, (dir / "scene.crpgs").string(), "", s);
     if (!rep.ok()) return report_error(rep.status());
     experiments::RunMetrics m = bitstream_metrics(rep.value(), cfg);
     m.method = base->method + " (one model)";

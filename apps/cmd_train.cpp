@@ -73,8 +73,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const Run
   if (const int n = prepared->stale_files_removed; n > 0)
     std::printf("removed %d half-written file(s) of an earlier, killed attempt\n", n);
   Trainer& t = *prepared->trainer;
-  for (const std::string& w : t.dataset().warnings)
-    std::fprintf(stderr, "warning: %s\n", w.c_str());
+  print_dataset_warnings(t.dataset());
   for (const std::string& w : t.setting_warnings())
     std::fprintf(stderr, "warning: %s\n", w.c_str());
   const bool resume = run.resume;

@@ -273,25 +273,28 @@ py::dict train(const std::string& config, const std::string& out_dir,
   return out;
 }
 
-/// The bitstream of a finished run (rate path), its steps scaled by rate_scale, written to
-/// `out` and checked.
+/// The bitstream of a finished run (rate path), its steps scaled by rate_scale, or the best
+/// file at or under target_size bytes (> 0), written to `out` and checked.
 py::dict encode(const std::string& run_dir, const std::string& out, double rate_scale,
-                const std::vector<std::string>& plugin_dirs) {
+                uint64_t target_size, const std::vector<std::string>& plugin_dirs) {
   if (!(rate_scale > 0)) throw py::value_error("rate_scale must be positive");
   const ComponentRegistry r = registry_with(plugin_dirs);
-  const Config cfg = value_or_raise(load_config(run_dir + "/config.yaml", {}, r));
-  auto trainer = value_or_raise(setup_training(cfg, r, reading_setup(run_dir)));
-  if (trainer->iteration() == 0)
-    raise_if_error(Status(StatusCode::kNotFound, "no checkpoint in " + run_dir + " (train first)"));
-  if (!trainer->model().has_rate())
+  FinishedRun run = value_or_raise(open_finished_run(r, run_dir));
+  if (!run.trainer->model().has_rate())
     raise_if_error(Status(StatusCode::kInvalidArgument,
                           run_dir + " has no rate path (rate.lambda): nothing to encode"));
+  StatusOr<double> scale = rate_scale;
   StatusOr<BitstreamReport> rep = Status(StatusCode::kInternal, "not written");
   {
     py::gil_scoped_release release;
-    rep = write_and_check_bitstream(*trainer, cfg, r, out, "", rate_scale);
+    if (target_size > 0) scale = scale_for_target_size(*run.trainer, run.config, target_size);
+    if (scale.ok())
+      rep = write_and_check_bitstream(*run.trainer, run.config, r, out, "", scale.value());
   }
-  return bitstream_dict(value_or_raise(std::move(rep)));
+  const double used = value_or_raise(std::move(scale));
+  py::dict d = bitstream_dict(value_or_raise(std::move(rep)));
+  d["rate_scale"] = used;
+  return d;
 }
 
 /// A bitstream's sections: id, component, bytes and category, and its total size.
@@ -391,7 +394,7 @@ PYBIND11_MODULE(_crpgs, m) {
         py::arg("resume") = false, py::arg("method") = "",
         py::arg("plugin_dirs") = std::vector<std::string>{});
   m.def("encode", &encode, py::arg("run_dir"), py::arg("out"), py::arg("rate_scale") = 1.0,
-        py::arg("plugin_dirs") = std::vector<std::string>{});
+        py::arg("target_size") = 0, py::arg("plugin_dirs") = std::vector<std::string>{});
   m.def("info", &info, py::arg("path"), py::arg("plugin_dirs") = std::vector<std::string>{});
   m.def(
       "metrics_json",

@@ -62,10 +62,13 @@ def train(config, out_dir, sets=(), progress=None, resume=False, method="", plug
     return out
 
 
-def encode(run_dir, out, rate_scale=1.0, plugin_dirs=()):
+def encode(run_dir, out, rate_scale=1.0, target_size=None, plugin_dirs=()):
     """Writes a finished run's bitstream to `out` with its quantisation steps scaled by
-    rate_scale (> 1: smaller, < 1: larger), then decodes and evaluates it."""
-    return _crpgs.encode(str(run_dir), str(out), float(rate_scale), _paths(plugin_dirs))
+    rate_scale (> 1: smaller, < 1: larger), or the best file at or under target_size bytes
+    (crpgs.Error naming the smallest size the model reaches when it is below that), then decodes
+    and evaluates it. The result has the rate_scale used."""
+    return _crpgs.encode(str(run_dir), str(out), float(rate_scale), int(target_size or 0),
+                         _paths(plugin_dirs))
 
 
 def info(path, plugin_dirs=()):

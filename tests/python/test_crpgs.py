@@ -106,6 +106,11 @@ def test_python_and_cli_agree_on_the_run_and_on_encoding_at_another_rate(trained
     assert half["bytes"] < out["bitstream"]["bytes"]
     rc, log = cli("info", d / "half.crpgs")
     assert rc == 0, log
+    target = (half["bytes"] + out["bitstream"]["bytes"]) // 2
+    fit = crpgs.encode(d / "run", d / "fit.crpgs", target_size=target)
+    assert 0.97 * target <= fit["bytes"] <= target and 1 < fit["rate_scale"] < 4
+    with pytest.raises(crpgs.Error, match="below what this model reaches"):
+        crpgs.encode(d / "run", d / "tiny.crpgs", target_size=100)
 
 
 def test_export_from_python_writes_the_clis_ply_byte_for_byte(trained):

@@ -139,6 +139,21 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& trainer, const Conf
                                                     const std::string& png_dir,
                                                     double rate_scale = 1.0);
 
+/// A finished run opened to encode it again: its config (with `sets`) and its trainer, the
+/// model loaded from the checkpoint on the CPU. kNotFound without a checkpoint or dataset.
+struct FinishedRun {
+  Config config;
+  std::unique_ptr<Trainer> trainer;
+};
+StatusOr<FinishedRun> open_finished_run(const ComponentRegistry& registry,
+                                        const std::string& run_dir,
+                                        const std::vector<std::string>& sets = {});
+/// The rate scale of the best-quality file at or under `target` bytes: the smallest scale whose
+/// file fits (the steps grow with the scale, so the size falls with it), by bisection on
+/// log(scale) over [1/16, 256] with in-memory encodes. kInvalidArgument, naming the smallest
+/// size the model reaches, when the target is below it.
+StatusOr<double> scale_for_target_size(Trainer& trainer, const Config& config, uint64_t target);
+
 /// metrics.json's fields of a written and checked bitstream: λ, size and its breakdown, coded
 /// anchors and Gaussians, codec times, the decoded model's test views.
 experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config);

@@ -443,6 +443,44 @@ StatusOr<BitstreamReport> write_and_check_bitstream(Trainer& t, const Config& cf
   return rep;
 }
 
+StatusOr<FinishedRun> open_finished_run(const ComponentRegistry& r, const std::string& run_dir,
+                                        const std::vector<std::string>& sets) {
+  FinishedRun run;
+  CRPGS_ASSIGN_OR_RETURN(run.config, load_config(run_dir + "/config.yaml", sets, r));
+  CRPGS_RETURN_IF_ERROR(check_dataset(run.config));
+  CRPGS_ASSIGN_OR_RETURN(run.trainer, setup_training(run.config, r, reading_setup(run_dir)));
+  if (run.trainer->iteration() == 0)
+    return Status(StatusCode::kNotFound, "no checkpoint in " + run_dir);
+  return run;
+}
+
+StatusOr<double> scale_for_target_size(Trainer& t, const Config& cfg, uint64_t target) {
+  t.model().to(torch::kCPU);
+  auto size_at = [&](double scale) -> StatusOr<uint64_t> {
+    CRPGS_ASSIGN_OR_RETURN(CodedModel coded, coded_model_from(t.model(), nullptr, scale));
+    CRPGS_ASSIGN_OR_RETURN(EncodeResult enc,
+                           encode_model(coded, cfg, codec_components_of(t.model())));
+    return uint64_t(enc.bytes.size());
+  };
+  double lo = 1.0 / 16, hi = 256;  // log-scale bracket: size(hi) <= target < size(lo)
+  CRPGS_ASSIGN_OR_RETURN(const uint64_t smallest, size_at(hi));
+  if (smallest > target)
+    return Status(StatusCode::kInvalidArgument,
+                  "--target-size " + std::to_string(target) +
+                      " B is below what this model reaches: " + std::to_string(smallest) +
+                      " B at rate scale " + std::to_string(int(hi)) +
+                      " (positions, MLPs, grids and masks do not shrink with the steps); train "
+                      "with a larger rate.lambda for a smaller file");
+  CRPGS_ASSIGN_OR_RETURN(const uint64_t largest, size_at(lo));
+  if (largest <= target) return lo;  // the finest steps searched fit
+  for (int i = 0; i < 24 && hi / lo > 1.0005; ++i) {
+    const double mid = std::sqrt(lo * hi);
+    CRPGS_ASSIGN_OR_RETURN(const uint64_t size, size_at(mid));
+    (size <= target ? hi : lo) = mid;
+  }
+  return hi;
+}
+
 experiments::RunMetrics bitstream_metrics(const BitstreamReport& r, const Config& config) {
   experiments::RunMetrics m;
   m.size_bytes = r.file_bytes;
