@@ -59,6 +59,53 @@ ComponentRegistry registry_with(std::vector<std::string> plugin_dirs) {
   return r;
 }
 
+/// The views of a split ("train" or "test").
+const std::vector<View>& split_views(const Dataset& d, const std::string& split) {
+  if (split == "train") return d.train;
+  if (split == "test") return d.test;
+  throw py::value_error("split must be 'train' or 'test', not '" + split + "'");
+}
+
+/// cameras(split) and image(split, i) of whatever holds a dataset (Model, Scene).
+template <typename T, typename Class>
+void bind_views(Class& cls) {
+  cls.def(
+         "cameras",
+         [](const T& self, const std::string& split) {
+           std::vector<Camera> out;
+           for (const View& v : split_views(self.dataset(), split)) out.push_back(v.camera);
+           return out;
+         },
+         py::arg("split") = "test", "the split's cameras")
+      .def(
+          "image",
+          [](const T& self, const std::string& split, size_t i) {
+            const auto& v = split_views(self.dataset(), split);
+            if (i >= v.size()) throw py::index_error("view " + std::to_string(i) + " of " + split);
+            return image_to_tensor(v[i].image);
+          },
+          py::arg("split"), py::arg("index"), "view i's photo: [H, W, 3] float32 in [0, 1]")
+      .def_property_readonly("name", [](const T& self) { return self.dataset().name; })
+      .def_property_readonly(
+          "warnings", [](const T& self) { return self.dataset().warnings; },
+          "what loading the dataset warned of");
+}
+
+/// A dataset opened from a config, with the rasterizer it names (crpgs.open_dataset).
+class Scene {
+ public:
+  Scene(const std::string& config, const std::vector<std::string>& sets,
+        const std::vector<std::string>& plugin_dirs) {
+    const ComponentRegistry r = registry_with(plugin_dirs);
+    const Config cfg = value_or_raise(load_config(config, sets, r));
+    setup_ = value_or_raise(setup_training(cfg, r, reading_setup("")));
+  }
+  const Dataset& dataset() const { return setup_->dataset(); }
+
+ private:
+  std::unique_ptr<Trainer> setup_;
+};
+
 /// A model opened from a .crpgs file, a `crpgs decode` directory or a training run, with the
 /// cameras and photos of its dataset (crpgs.open).
 class Model {
@@ -70,24 +117,8 @@ class Model {
 
   std::string kind() const { return src_.kind; }
   int64_t num_anchors() { return src_.model().num_anchors(); }
-  std::vector<std::string> warnings() const { return src_.setup->dataset().warnings; }
 
-  const std::vector<View>& views(const std::string& split) const {
-    if (split == "train") return src_.setup->dataset().train;
-    if (split == "test") return src_.setup->dataset().test;
-    throw py::value_error("split must be 'train' or 'test', not '" + split + "'");
-  }
-  std::vector<Camera> cameras(const std::string& split) const {
-    std::vector<Camera> out;
-    for (const View& v : views(split)) out.push_back(v.camera);
-    return out;
-  }
-  /// The photo of view i of a split: [H, W, 3] float32 in [0, 1].
-  torch::Tensor image(const std::string& split, size_t i) const {
-    const auto& v = views(split);
-    if (i >= v.size()) throw py::index_error("view " + std::to_string(i) + " of " + split);
-    return image_to_tensor(v[i].image);
-  }
+  const Dataset& dataset() const { return src_.setup->dataset(); }
 
   /// [H, W, 3] float32 render of `camera`; `train_index` >= 0 renders with that training view's
   /// appearance embedding (as training did), else the mean.
@@ -373,16 +404,22 @@ PYBIND11_MODULE(_crpgs, m) {
                ", fx=" + std::to_string(c.fx) + ", name='" + c.name + "')";
       });
 
-  py::class_<Model>(m, "Model")
+  py::class_<Scene> scene(m, "Scene", "A dataset opened from a config (crpgs.open_dataset).");
+  scene.def(py::init<const std::string&, const std::vector<std::string>&,
+                     const std::vector<std::string>&>(),
+            py::arg("config"), py::arg("sets") = std::vector<std::string>{},
+            py::arg("plugin_dirs") = std::vector<std::string>{});
+  bind_views<Scene>(scene);
+
+  py::class_<Model> model(m, "Model");
+  bind_views<Model>(model);
+  model
       .def(py::init<const std::string&, const std::vector<std::string>&, int,
                     const std::vector<std::string>&>(),
            py::arg("source"), py::arg("sets") = std::vector<std::string>{}, py::arg("threads") = 0,
            py::arg("plugin_dirs") = std::vector<std::string>{})
       .def_property_readonly("kind", &Model::kind, "'bitstream', 'decoded' or 'run'")
       .def_property_readonly("num_anchors", &Model::num_anchors)
-      .def_property_readonly("warnings", &Model::warnings, "the dataset's warnings")
-      .def("cameras", &Model::cameras, py::arg("split") = "test")
-      .def("image", &Model::image, py::arg("split"), py::arg("index"))
       .def("render", &Model::render, py::arg("camera"), py::arg("train_index") = -1)
       .def("evaluate", &Model::evaluate, py::arg("png_dir") = "")
       .def("export_ply", &Model::export_ply, py::arg("path"), py::arg("sh_degree") = 3,

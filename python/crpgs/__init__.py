@@ -25,11 +25,11 @@ if "torch" not in _sys.modules:
 import torch  # noqa: E402,F401  (loads libtorch before the extension that links it)
 
 from . import _crpgs
-from ._crpgs import Camera, Error, Model, __version__, bd_psnr, bd_rate, commit  # noqa: F401
+from ._crpgs import Camera, Error, Model, Scene, __version__, bd_psnr, bd_rate, commit  # noqa: F401
 
 __all__ = [
-    "Camera", "Error", "Model", "bd_psnr", "bd_rate", "encode", "info", "open", "read_metrics",
-    "train", "__version__",
+    "Camera", "Error", "Model", "Scene", "bd_psnr", "bd_rate", "encode", "info", "open",
+    "open_dataset", "read_metrics", "train", "__version__",
 ]
 
 
@@ -82,6 +82,12 @@ def open(source, sets=(), threads=0, plugin_dirs=()):  # noqa: A001  (crpgs.open
     sets: "key=value" overrides of the dataset/rasterizer (e.g. "dataset.path=DIR");
     threads: CPU threads (0 keeps the config's)."""
     return Model(str(source), list(sets), threads, _paths(plugin_dirs))
+
+
+def open_dataset(config, sets=(), plugin_dirs=()):
+    """The dataset a config names (with "key=value" overrides): a Scene with cameras(split),
+    image(split, i), name and warnings, without training or opening a model."""
+    return Scene(str(config), list(sets), _paths(plugin_dirs))
 
 
 def read_metrics(path):

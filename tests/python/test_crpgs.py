@@ -90,6 +90,15 @@ def test_a_render_from_python_equals_the_clis_pixel_for_pixel(trained):
         cli_png = torch.frombuffer(bytearray(png.tobytes()), dtype=torch.uint8).view(
             png.height, png.width, 3)
         assert torch.equal(ours, cli_png), f"test view {i}"
+    # The dataset opened from the config alone has the same views and photos.
+    scene = crpgs.open_dataset(d / "tiny.yaml")
+    assert len(scene.cameras("test")) == len(cameras) and len(scene.cameras("train")) > 0
+    assert torch.equal(scene.image("test", 0), model.image("test", 0))
+    assert scene.cameras("test")[0].name == cameras[0].name
+    with pytest.raises(ValueError, match="split"):
+        scene.cameras("val")
+    with pytest.raises(IndexError):
+        scene.image("test", len(cameras))
     # A camera built in Python from the same numbers renders the same image.
     c = cameras[0]
     again = crpgs.Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.world_to_camera, "copy")
