@@ -30,26 +30,13 @@ namespace crpgs {
 namespace {
 namespace fs = std::filesystem;
 
-// A small synthetic scene and a small context grid; the fast schedule at 1/1000 passes through
-// every phase (growing from 2, noise from 3, rate and masks from 11) in 12 iterations. One thread:
-// on a loaded 2-core machine, spinning OpenMP workers make 2 threads many times slower.
-const char* kConfig = R"yaml(
-dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
-          synthetic_points: 1000}
-context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
-          n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
-entropy: {type: gaussian}
-scene: {appearance_dim: 4}
-rate: {lambda: 0.002}
-rasterizer: {type: cpu, threads: 1}
-train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
-        checkpoint_interval: 0, threads: 1}
-)yaml";
+// tests/data/tiny_rate.yaml: a small synthetic scene through every phase in 12 iterations.
+const std::string kConfigFile = std::string(CRPGS_SOURCE_DIR) + "/tests/data/tiny_rate.yaml";
 
 using test::read_archive;
 using test::run_cli;
 
-/// kConfig trained in this process into DIR/run, a fresh directory holding its config as
+/// kConfigFile trained in this process into DIR/run, a fresh directory holding its config as
 /// `crpgs train` leaves a run.
 struct SmallRun {
   Config config;
@@ -58,7 +45,7 @@ struct SmallRun {
 StatusOr<SmallRun> train_small_run(const fs::path& dir, const ComponentRegistry& reg) {
   fs::remove_all(dir);
   fs::create_directories(dir / "run");
-  CRPGS_ASSIGN_OR_RETURN(Config raw, Config::from_string(kConfig, "decode_cli.yaml"));
+  CRPGS_ASSIGN_OR_RETURN(Config raw, Config::load_file(kConfigFile));
   SmallRun r;
   CRPGS_ASSIGN_OR_RETURN(r.config, raw.resolve(reg));
   CRPGS_RETURN_IF_ERROR(r.config.save((dir / "run" / "config.yaml").string()));

@@ -7,6 +7,7 @@ Run by ctest (tests/CMakeLists.txt: python.pytest) with PYTHONPATH=BUILD/python 
 import os
 import shutil
 import subprocess
+from pathlib import Path
 
 import pytest
 import torch
@@ -16,20 +17,9 @@ import crpgs
 
 CRPGS = os.environ["CRPGS_EXE"]
 
-# A small synthetic scene and context grid; the fast schedule at 1/1000 passes every phase
-# (growing, noise, rate and masks) in 12 iterations; one thread (as the C++ codec tests).
-CONFIG = """
-dataset: {format: synthetic, synthetic_width: 48, synthetic_height: 32, synthetic_views: 12,
-          synthetic_points: 1000}
-context: {type: hash_grid, n_levels: 4, resolutions: [8, 16, 32, 64], log2_hashmap_size: 10,
-          n_levels_2d: 2, resolutions_2d: [32, 64], log2_hashmap_size_2d: 10, hidden_dim: 32}
-entropy: {type: gaussian}
-scene: {appearance_dim: 4}
-rate: {lambda: 0.002}
-rasterizer: {type: cpu, threads: 1}
-train: {schedule: fast, fast_factor: 0.001, iterations: 12, eval_interval: 0,
-        checkpoint_interval: 0, threads: 1}
-"""
+# tests/data/tiny_rate.yaml: a small synthetic scene through every phase in 12 iterations (as the
+# C++ codec tests train it).
+CONFIG = (Path(__file__).resolve().parents[1] / "data" / "tiny_rate.yaml").read_text()
 
 
 def cli(*args):
