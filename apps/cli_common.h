@@ -69,6 +69,10 @@ StatusOr<ModelSource> load_model_source(const GlobalOptions& g, const ComponentR
 int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const std::string& png_dir,
                         const Lpips* lpips);
 
+/// export_gaussians with a progress bar over the refinement, its notes on stderr and a line on
+/// the fit (cmd_export.cpp; `crpgs export` and `crpgs view`).
+StatusOr<ExportResult> export_with_progress(ModelSource& source, const ExportOptions& options);
+
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);
 void add_config_commands(CLI::App& app, GlobalOptions& g);
@@ -78,5 +82,6 @@ void add_sweep_commands(CLI::App& app, GlobalOptions& g);   // cmd_sweep.cpp
 void add_report_commands(CLI::App& app, GlobalOptions& g);  // cmd_report.cpp
 void add_render_commands(CLI::App& app, GlobalOptions& g);  // cmd_render.cpp: decode, render
 void add_export_commands(CLI::App& app, GlobalOptions& g);  // cmd_export.cpp: .ply export, import
+void add_view_commands(CLI::App& app, GlobalOptions& g);    // cmd_view.cpp: a scene in a browser
 
 }  // namespace crpgs::cli

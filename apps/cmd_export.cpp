@@ -24,6 +24,42 @@ namespace fs = std::filesystem;
 /// Test-view PSNR below the anchor model's beyond which `crpgs export` warns, in dB.
 constexpr double kExportGapWarning = 0.5;
 
+}  // namespace
+
+StatusOr<ExportResult> export_with_progress(ModelSource& source, const ExportOptions& options) {
+  std::optional<ProgressBar> bar;
+  const int refine = options.refine;
+  auto exported = export_gaussians(source, options, [&bar, refine](int it, double loss) {
+    if (!bar) bar.emplace("refine", refine);
+    char extra[32];
+    std::snprintf(extra, sizeof extra, "loss %.4f", loss);
+    bar->update(it, extra);
+  });
+  if (bar) bar->finish();
+  if (!exported.ok()) return exported.status();
+  for (const std::string& note : exported->notes) std::fprintf(stderr, "%s\n", note.c_str());
+  if (const auto& rep = exported->refine) {
+    std::string losses;  // the first and last complete passes, when there are two
+    char text[96];
+    if (rep->passes >= 2)
+      std::snprintf(text, sizeof text, ", loss %.4f -> %.4f (mean of the first and last pass)",
+                    rep->first_pass_loss, rep->last_pass_loss);
+    else if (rep->passes == 1)
+      std::snprintf(text, sizeof text, ", loss %.4f (mean of its one pass)", rep->first_pass_loss);
+    else
+      text[0] = '\0';
+    losses = text;
+    if (rep->skipped > 0)
+      losses += ", " + std::to_string(rep->skipped) + " with a non-finite loss or gradient skipped";
+    std::printf("refined on %zu training views: %d iteration%s%s, %.1f s\n",
+                source.setup->dataset().train.size(), rep->iterations,
+                rep->iterations == 1 ? "" : "s", losses.c_str(), exported->refine_seconds);
+  }
+  return exported;
+}
+
+namespace {
+
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
                    int degree, int directions, double view_weight, const std::string& opacity_from,
                    int refine, int threads) {
@@ -39,33 +75,8 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
   opt.view_weight = view_weight;
   opt.opacity_over_views = opacity_from == "views";
   opt.refine = refine;
-  std::optional<ProgressBar> bar;
-  auto exported = export_gaussians(*src, opt, [&bar, refine](int it, double loss) {
-    if (!bar) bar.emplace("refine", refine);
-    char extra[32];
-    std::snprintf(extra, sizeof extra, "loss %.4f", loss);
-    bar->update(it, extra);
-  });
-  if (bar) bar->finish();
+  auto exported = export_with_progress(*src, opt);
   if (!exported.ok()) return report_error(exported.status());
-  for (const std::string& note : exported->notes) std::fprintf(stderr, "%s\n", note.c_str());
-  if (const auto& rep = exported->refine) {
-    std::string losses;  // the first and last complete passes, when there are two
-    char text[96];
-    if (rep->passes >= 2)
-      std::snprintf(text, sizeof text, ", loss %.4f -> %.4f (mean of the first and last pass)",
-                    rep->first_pass_loss, rep->last_pass_loss);
-    else if (rep->passes == 1)
-      std::snprintf(text, sizeof text, ", loss %.4f (mean of its one pass)", rep->first_pass_loss);
-    else
-      text[0] = '\0';
-    losses = text;
-    if (rep->skipped > 0)
-      losses += ", " + std::to_string(rep->skipped) + " with a non-finite loss or gradient skipped";
-    std::printf("refined on %zu training views: %d iteration%s%s, %.1f s\n", ds.train.size(),
-                rep->iterations, rep->iterations == 1 ? "" : "s", losses.c_str(),
-                exported->refine_seconds);
-  }
   const PlyGaussians& baked = exported->gaussians;
   const double bake_s = exported->bake_seconds;
   Status st = write_ply(out, baked);

@@ -19,8 +19,8 @@ namespace {
 // The commands that compute restart once with the environment they run best under
 // (bench/results/train_fern.md: idle threads that sleep, OpenBLAS kernels as wide as the CPU).
 void restart_for_compute_commands(int argc, char** argv) {
-  static const char* const kComputeCommands[] = {"train",  "eval",   "demo",  "encode",
-                                                 "decode", "render", "export"};
+  static const char* const kComputeCommands[] = {"train",  "eval",   "demo",   "encode",
+                                                 "decode", "render", "export", "view"};
   for (int i = 1; i < argc; ++i)
     for (const char* c : kComputeCommands)
       if (std::strcmp(argv[i], c) == 0) return crpgs::restart_with_compute_environment(argv);
@@ -96,6 +96,7 @@ int main(int argc, char** argv) {
   add_sweep_commands(app, g);
   add_report_commands(app, g);
   add_export_commands(app, g);
+  add_view_commands(app, g);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -13,6 +13,7 @@ find_package(Threads REQUIRED)
 find_package(OpenMP)
 if(CRPGS_BUILD_APPS)
   find_package(CLI11 REQUIRED)                 # libcli11-dev (header-only)
+  pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)  # libcpp-httplib-dev: `crpgs view`
 endif()
 if(CRPGS_BUILD_TESTS)
   find_package(GTest REQUIRED)
