@@ -10,7 +10,7 @@
 namespace crpgs {
 namespace {
 
-// The README installs libopenblas0-pthread: without it libtorch runs on the reference BLAS,
+// scripts/setup installs libopenblas0-pthread: without it libtorch runs on the reference BLAS,
 // ~30x slower. The kernels named are those OpenBLAS runs (OPENBLAS_CORETYPE's, when set).
 TEST(Runtime, BlasIsOpenBlasAndNamesItsKernels) {
   const std::string kernels = blas_kernels();

@@ -635,7 +635,7 @@ TEST(Sweep, RunsGetTheSharedPrefixDirectory) {
   EXPECT_TRUE(parse_sweep("configs: [a.yaml]\n", "s.yaml")->share_prefix);  // the default
   EXPECT_FALSE(parse_sweep("configs: [a.yaml]\nshare_prefix: false\n", "s.yaml")->share_prefix);
   s.opt.prefix_dir = sweep_prefix_dir(s.dir + "/runs");
-  EXPECT_EQ(s.opt.prefix_dir, s.dir + "/runs/prefixes");  // the layout the README documents
+  EXPECT_EQ(s.opt.prefix_dir, s.dir + "/runs/prefixes");  // the layout docs/operations.md documents
   ASSERT_TRUE(run_one(s.runs[0], s.opt).ok());
   EXPECT_NE(read_text(s.runs[0].dir + "/stdout.log").find("--share-prefix " + s.opt.prefix_dir),
             std::string::npos);

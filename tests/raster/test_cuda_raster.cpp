@@ -217,7 +217,7 @@ TEST(CudaRaster, RejectsCpuTensors) {
 
 TEST(CudaRaster, Skipped) {
   GTEST_SKIP() << "built without the CUDA rasterizer (CRPGS_CUDA_ENABLED is off: no nvcc or no "
-                  "CUDA libtorch; README, 'CUDA')";
+                  "CUDA libtorch; docs/developing.md, 'CUDA')";
 }
 
 #endif
