@@ -97,7 +97,7 @@ void add_config_commands(CLI::App& app, GlobalOptions& g) {
     ComponentRegistry r = load_registry(g);
     auto cfg = load_config(file, g.sets, r);
     if (!cfg.ok()) throw CLI::RuntimeError(report_error(cfg.status()));
-    if (!quiet) std::printf("%s", cfg->dump().c_str());
+    if (!quiet) std::printf("%s", cfg->to_yaml().c_str());
     std::fprintf(stderr, "%s: ok\n", file.c_str());
   });
 }

@@ -53,8 +53,9 @@ StatusOr<fs::path> viewer_directory() {
       return Status(StatusCode::kNotFound,
                     "the viewer is incomplete: " + (dir / f).string() +
                         " is missing (its web packages come from npm: scripts/setup runs `npm ci "
-                        "--prefix viewer` in the source tree, then rebuild; or set "
-                        "CRPGS_VIEWER_DIR)");
+                        "--prefix viewer` in the source tree, and records there why when it "
+                        "fails, in viewer/node_modules/.crpgs-install-failed; then rebuild. Or "
+                        "set CRPGS_VIEWER_DIR)");
   return dir;
 }
 

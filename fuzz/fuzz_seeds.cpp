@@ -133,7 +133,7 @@ StatusOr<Seed> make_seed(const Variant& v, const ComponentRegistry& reg, uint32_
     m.mlps["leaf_mlp.b2"] = torch::randn({dc}, gen) * 0.1;
   }
   CRPGS_ASSIGN_OR_RETURN(EncodeResult enc, encode_model(m, config, c));
-  return Seed{std::string("seed-") + v.name + ".crpg", std::move(enc.bytes)};
+  return Seed{std::string("seed-") + v.name + ".crpgs", std::move(enc.bytes)};
 }
 
 }  // namespace

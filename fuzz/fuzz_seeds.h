@@ -15,7 +15,7 @@
 namespace crpgs::fuzz {
 
 struct Seed {
-  std::string name;  ///< file name, e.g. "seed-plain.crpg"
+  std::string name;  ///< file name, e.g. "seed-plain.crpgs"
   std::vector<uint8_t> bytes;
 };
 

@@ -1,5 +1,5 @@
 /// @file test_bitstream.cpp
-/// @brief ByteWriter/ByteReader, CRC32 and the .crpg container, including every corruption the
+/// @brief ByteWriter/ByteReader, CRC32 and the .crpgs container, including every corruption the
 /// decoder must refuse.
 #include <gtest/gtest.h>
 
@@ -295,7 +295,7 @@ TEST(Container, WritesFilesAtomically) {
   namespace fs = std::filesystem;
   const fs::path dir = fs::path(CRPGS_TEST_TMP_DIR) / "coding_container";
   fs::remove_all(dir);
-  const std::string path = (dir / "scene.crpg").string();
+  const std::string path = (dir / "scene.crpgs").string();
   const ContainerWriter w = sample_writer();
   ASSERT_TRUE(w.write_file(path).ok());
   auto c = ContainerReader::read_file(path);
@@ -305,7 +305,7 @@ TEST(Container, WritesFilesAtomically) {
   size_t files = 0;
   for (const auto& e : fs::directory_iterator(dir)) files += e.is_regular_file();
   EXPECT_EQ(files, 1u);  // no temporary left behind
-  EXPECT_EQ(ContainerReader::read_file((dir / "missing.crpg").string()).status().code(),
+  EXPECT_EQ(ContainerReader::read_file((dir / "missing.crpgs").string()).status().code(),
             StatusCode::kIoError);
 }
 

@@ -114,6 +114,31 @@ TEST(Config, ResolvesDefaultsAndComponents) {
   EXPECT_EQ(r2->hash(), r->hash());
 }
 
+// What people read (config check, RUN_DIR/config.yaml) has floats as written (0.0002, not
+// 0.00020000000000000001); reading it back gives the canonical text and hash bitstreams carry.
+TEST(Config, SavedTextHasShortFloatsAndReadsBackToTheSameHash) {
+  auto cfg = Config::from_string(
+      "features: {type: sfa, ratio: 0.2}\ntrain: {lambda_dssim: 0.1, iterations: 30}\n"
+      "rate: {lambda: 2.0e-5}\n",
+      "t.yaml");
+  ASSERT_TRUE(cfg.ok());
+  auto r = cfg->resolve(test_registry());
+  ASSERT_TRUE(r.ok()) << r.status().to_string();
+  const std::string text = r->to_yaml();
+  EXPECT_NE(text.find("lambda_dssim: 0.1\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("ratio: 0.2\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("lambda: 2e-05\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("iterations: 30\n"), std::string::npos) << text;
+  EXPECT_EQ(text.find("0000000"), std::string::npos) << text;
+  EXPECT_NE(r->dump().find("0.10000000000000001"), std::string::npos);  // canonical: as before
+  auto back = Config::from_string(text, "back.yaml");
+  ASSERT_TRUE(back.ok());
+  auto r2 = back->resolve(test_registry());
+  ASSERT_TRUE(r2.ok()) << r2.status().to_string();
+  EXPECT_EQ(r2->dump(), r->dump());
+  EXPECT_EQ(r2->hash(), r->hash());
+}
+
 // Each kind of bad YAML names file:line:col, the YAML path and what was expected.
 TEST(Config, UnknownKeyNamesLineAndValidKeys) {
   Status st = resolve_text("features:\n  type: sfa\n  ratoi: 0.3\n");

@@ -113,7 +113,7 @@ TEST(FuzzCorpus, SeedsDecodeAndResealLeavesThemUnchanged) {
 
 TEST(FuzzCorpus, ResealRepairsEveryChecksum) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-plain.crpg");
+  const Bytes& good = seeds().at("seed-plain.crpgs");
   Bytes bad = good;
   bad[24] ^= 1;  // header CRC
   for (const auto& s : sections_of(good))
@@ -163,7 +163,7 @@ TEST(OlderFormats, FormatOneOneSeedsDecodeAsWritten) {
   size_t checked = 0;
   for (const auto& e : fs::directory_iterator(dir)) {
     const std::string name = e.path().filename().string();
-    if (e.path().extension() != ".crpg") continue;
+    if (e.path().extension() != ".crpgs") continue;
     auto old_bytes = read_file_bytes(e.path().string());
     ASSERT_TRUE(old_bytes.ok()) << old_bytes.status().to_string();
     auto new_bytes = read_file_bytes((current / name).string());
@@ -200,7 +200,7 @@ TEST(OlderFormats, FormatOneOneSeedsDecodeAsWritten) {
          {std::tuple{pa.q_f, pb.q_f, a.q0.feature}, std::tuple{pa.q_s, pb.q_s, a.q0.scaling},
           std::tuple{pa.q_o, pb.q_o, a.q0.offset}})
       EXPECT_TRUE(((x - y).abs() <= 1e-5 * y + 1.2e-7 * q0).all().item<bool>()) << name;
-    if (name == "seed-small_steps.crpg") {  // still the case it was made for
+    if (name == "seed-small_steps.crpgs") {  // still the case it was made for
       EXPECT_LT(pb.q_f.max().item<double>(), 1e-3 * a.q0.feature);
     }
     ++checked;
@@ -212,7 +212,7 @@ TEST(OlderFormats, FormatOneOneSeedsDecodeAsWritten) {
 
 TEST(HostileBitstream, HeadClaimingHugeCountsIsRefused) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-plain.crpg");
+  const Bytes& good = seeds().at("seed-plain.crpgs");
   const Bytes head = payload_of(good, "HEAD");
   coding::ByteReader r(head);
   uint64_t v[4];
@@ -236,7 +236,7 @@ TEST(HostileBitstream, HeadClaimingHugeCountsIsRefused) {
 
 TEST(HostileBitstream, AnchorMaskClaiming2To32AnchorsInOneKilobyteIsRefused) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-links_paper.crpg");
+  const Bytes& good = seeds().at("seed-links_paper.crpgs");
   const uint64_t n0 = uint64_t(1) << 32;
   coding::ByteWriter w;
   w.put_varint(n0);  // AMSK: model anchor count
@@ -252,7 +252,7 @@ TEST(HostileBitstream, AnchorMaskClaiming2To32AnchorsInOneKilobyteIsRefused) {
 
 TEST(HostileBitstream, MlpTensorLargerThanItsSectionIsRefused) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-plain.crpg");
+  const Bytes& good = seeds().at("seed-plain.crpgs");
   coding::ByteWriter w;
   w.put_varint(1);
   w.put_string("mlp_opacity.w1");
@@ -265,11 +265,11 @@ TEST(HostileBitstream, MlpTensorLargerThanItsSectionIsRefused) {
 
 TEST(HostileBitstream, ConfigAskingForAHugeGridIsRefusedBeforeAllocating) {
   SKIP_WITHOUT_PLUGINS();
-  for (const char* seed : {"seed-plain.crpg", "seed-sfa.crpg"}) {
+  for (const char* seed : {"seed-plain.crpgs", "seed-sfa.crpgs"}) {
     const Bytes& good = seeds().at(seed);
     const Bytes conf = payload_of(good, "CONF");
     YAML::Node root = YAML::Load(std::string(conf.begin(), conf.end()));
-    const char* block = std::string(seed) == "seed-sfa.crpg" ? "features" : "context";
+    const char* block = std::string(seed) == "seed-sfa.crpgs" ? "features" : "context";
     // Levels of 2^30 entries (fine resolutions fill them): tens of GiB of floats.
     root[block]["log2_hashmap_size"] = 30;
     root[block]["resolutions"] = std::vector<int>(root[block]["resolutions"].size(), 4096);
@@ -285,7 +285,7 @@ TEST(HostileBitstream, ConfigAskingForAHugeGridIsRefusedBeforeAllocating) {
 
 TEST(HostileBitstream, FutureVersionsAreRefusedAndFutureMinorsRead) {
   SKIP_WITHOUT_PLUGINS();
-  const Bytes& good = seeds().at("seed-plain.crpg");
+  const Bytes& good = seeds().at("seed-plain.crpgs");
   auto patched = [&](size_t at, uint16_t v) {
     Bytes b = good;
     b[at] = uint8_t(v);
@@ -387,7 +387,7 @@ TEST(HostileBitstream, EachSectionPayloadCorruptedBehindAValidCrcIsRefusedOrDeco
 
 TEST(HostileBitstream, MissingSectionsAreRefusedByName) {
   SKIP_WITHOUT_PLUGINS();
-  for (const char* seed : {"seed-links.crpg", "seed-links_paper.crpg", "seed-sfa.crpg"}) {
+  for (const char* seed : {"seed-links.crpgs", "seed-links_paper.crpgs", "seed-sfa.crpgs"}) {
     const Bytes& good = seeds().at(seed);
     for (const auto& s : sections_of(good)) {
       const Bytes file = rebuild(good, [&](coding::Section& t) { return t.id != s.id; });

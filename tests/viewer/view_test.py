@@ -14,8 +14,10 @@ once per view, where our rasterizer keeps 32-bit values and sorts per tile: this
 another camera's about 12.5 dB, so 30 dB catches a camera misplaced by a pixel; the test checks
 both controls fail it.
 
-Skips (exit 77, a visible SKIP line) only where Chromium is absent or cannot start, or the
-websocket module is missing. Usage: view_test.py BUILD_DIR CRPGS_EXE
+Skips (exit 77, a visible SKIP line) only where Chromium is absent or cannot start, the
+websocket module is missing, or scripts/setup recorded that npm could not install the viewer's
+packages (viewer/node_modules/.crpgs-install-failed: an unreachable registry); viewer files
+missing without that record fail. Usage: view_test.py BUILD_DIR CRPGS_EXE SOURCE_DIR
 """
 import base64
 import json
@@ -128,7 +130,11 @@ def run(cmd, log, timeout=300):
 
 
 def main():
-    build, crpgs = sys.argv[1], sys.argv[2]
+    build, crpgs, source = sys.argv[1], sys.argv[2], sys.argv[3]
+    failed_install = os.path.join(source, "viewer", "node_modules", ".crpgs-install-failed")
+    if os.path.exists(failed_install):
+        with open(failed_install) as f:
+            skip("scripts/setup could not install the viewer's npm packages: " + f.read()[-600:])
     chromium = find_chromium()
     if not chromium:
         skip("no Chromium (install Debian's chromium, or set CRPGS_CHROMIUM)")

@@ -60,8 +60,15 @@ class Config {
   YAML::Node section(const std::string& key) const { return root_[key]; }
   const std::string& file() const { return src_.file; }
   const SourceRef& source() const { return src_; }
+  /// The canonical text: hashed, and carried inside bitstreams. Floats keep yaml-cpp's 17
+  /// significant digits (0.00020000000000000001), so that hashes, shared-prefix keys and
+  /// bitstream bytes stay those of earlier builds.
   std::string dump() const;
-  /// Writes dump() atomically to `path`.
+  /// The text for people: dump() with each float in the shortest form that reads back as the
+  /// same value (0.0002). What `config check` prints and save() writes; reading it back gives
+  /// the same dump() and hash().
+  std::string to_yaml() const;
+  /// Writes to_yaml() atomically to `path`.
   Status save(const std::string& path) const;
   /// FNV-1a 64 of dump(): identifies a resolved config in bitstreams.
   uint64_t hash() const;

@@ -1,5 +1,5 @@
 /// @file bitstream.cpp
-/// @brief ByteWriter/ByteReader, CRC32 (zlib) and the `.crpg` container.
+/// @brief ByteWriter/ByteReader, CRC32 (zlib) and the `.crpgs` container.
 #include "crpgs/coding/bitstream.h"
 
 #include <zlib.h>

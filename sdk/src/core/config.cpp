@@ -2,8 +2,12 @@
 #include "crpgs/config.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <sstream>
 #include <utility>
@@ -353,6 +357,51 @@ std::string Config::dump() const {
   return std::string(e.c_str()) + "\n";
 }
 
+namespace {
+
+// A scalar as yaml-cpp writes a double (17 significant digits) in the shortest text that reads
+// back as the same double; any other scalar, integers included, as it is.
+std::string shortest_float_text(const std::string& s) {
+  if (s.find_first_of(".eE") == std::string::npos) return s;
+  char* end = nullptr;
+  const double x = std::strtod(s.c_str(), &end);
+  if (s.empty() || end != s.c_str() + s.size() || !std::isfinite(x)) return s;
+  std::ostringstream as_written;  // yaml-cpp's convert<double>::encode
+  as_written.precision(std::numeric_limits<double>::max_digits10);
+  as_written << x;
+  if (as_written.str() != s) return s;
+  char buf[32];
+  for (int digits = 1; digits <= std::numeric_limits<double>::max_digits10; ++digits) {
+    std::snprintf(buf, sizeof buf, "%.*g", digits, x);
+    if (std::strtod(buf, nullptr) == x) break;
+  }
+  return buf;
+}
+
+YAML::Node with_short_floats(const YAML::Node& n) {
+  if (n.IsScalar()) return YAML::Node(shortest_float_text(n.Scalar()));
+  YAML::Node out;
+  if (n.IsSequence()) {
+    out = YAML::Node(YAML::NodeType::Sequence);
+    for (const auto& e : n) out.push_back(with_short_floats(e));
+  } else if (n.IsMap()) {
+    out = YAML::Node(YAML::NodeType::Map);
+    for (const auto& kv : n) out[kv.first.Scalar()] = with_short_floats(kv.second);
+  } else {
+    return YAML::Clone(n);
+  }
+  out.SetStyle(n.Style());
+  return out;
+}
+
+}  // namespace
+
+std::string Config::to_yaml() const {
+  YAML::Emitter e;
+  e << with_short_floats(root_);
+  return std::string(e.c_str()) + "\n";
+}
+
 Status make_dataset_path_absolute(Config& cfg, const std::string& base) {
   const YAML::Node ds = cfg.root()["dataset"];
   if (!ds || !ds.IsMap() || !ds["path"] || !ds["path"].IsScalar()) return OkStatus();
@@ -363,7 +412,7 @@ Status make_dataset_path_absolute(Config& cfg, const std::string& base) {
 }
 
 Status Config::save(const std::string& path) const {
-  return write_file_atomic(path, dump());
+  return write_file_atomic(path, to_yaml());
 }
 
 uint64_t Config::hash() const {

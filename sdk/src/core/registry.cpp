@@ -263,7 +263,8 @@ std::vector<std::string> default_plugin_dirs(const std::vector<std::string>& plu
 namespace crpgs {
 BuildInfo build_info() {
   const crpgs_build_info b = host_build_info();
-  return BuildInfo{CRPGS_VERSION_STRING, CRPGS_GIT_COMMIT, b.compiler, b.torch_version,
-                   b.cuda != 0};
+  // The release as its package names it, where the build found one (sdk/CMakeLists.txt).
+  const char* torch = CRPGS_TORCH_RELEASE[0] != '\0' ? CRPGS_TORCH_RELEASE : b.torch_version;
+  return BuildInfo{CRPGS_VERSION_STRING, CRPGS_GIT_COMMIT, b.compiler, torch, b.cuda != 0};
 }
 }  // namespace crpgs

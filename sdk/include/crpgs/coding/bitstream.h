@@ -1,6 +1,6 @@
 /// @file bitstream.h
 /// @brief Byte-level I/O (little-endian ints, floats, varints; bounds-checked reads), CRC32 and
-/// the versioned `.crpg` container: magic, version, flags, config hash, then CRC-protected
+/// the versioned `.crpgs` container: magic, version, flags, config hash, then CRC-protected
 /// sections, each tagged with a section id (4CC) and the writing component's id and version.
 ///
 /// Container layout (all integers little-endian):
