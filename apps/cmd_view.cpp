@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <sstream>
 #include <thread>
 
 #include "cli_common.h"
@@ -24,17 +25,14 @@ namespace crpgs::cli {
 namespace {
 namespace fs = std::filesystem;
 
-/// The files of viewer/ the page loads (index.html's import map), as the build and install
-/// trees hold them.
-const char* const kViewerFiles[] = {
-    "index.html",
-    "viewer.js",
-    "node_modules/three/build/three.module.js",
-    "node_modules/three/build/three.core.js",
-    "node_modules/three/examples/jsm/controls/OrbitControls.js",
-    "node_modules/three/examples/jsm/postprocessing/Pass.js",
-    "node_modules/@sparkjsdev/spark/dist/spark.module.min.js",
-};
+/// The files of viewer/ the page loads, as the build and install trees hold them: the list
+/// apps/CMakeLists.txt copies (CRPGS_VIEWER_FILES, comma-separated).
+std::vector<std::string> viewer_files() {
+  std::vector<std::string> files;
+  std::stringstream list(CRPGS_VIEWER_FILES);
+  for (std::string f; std::getline(list, f, ',');) files.push_back(f);
+  return files;
+}
 
 /// CRPGS_VIEWER_DIR, else share/crpgs/viewer beside this executable's bin/ (the build tree
 /// mirrors the install tree).
@@ -48,7 +46,7 @@ StatusOr<fs::path> viewer_directory() {
     if (ec) return Status(StatusCode::kNotFound, "cannot locate this executable: " + ec.message());
     dir = exe.parent_path().parent_path() / "share" / "crpgs" / "viewer";
   }
-  for (const char* f : kViewerFiles)
+  for (const std::string& f : viewer_files())
     if (std::error_code ec; !fs::is_regular_file(dir / f, ec))
       return Status(StatusCode::kNotFound,
                     "the viewer is incomplete: " + (dir / f).string() +
