@@ -12,6 +12,8 @@
 // the directory the run was trained from (its dataset.path may be relative to it).
 // CRPGS_BENCH_PROFILE=FILE also records libtorch's op-level profile of the timed steps as a
 // Chrome trace (chrome://tracing; operators with their CPU times, forward and backward).
+// CRPGS_BENCH_OPS=FILE writes a table of the timed steps' operators by name and input shapes:
+// self time (wall, nested operators subtracted) and calls per step, largest first.
 //
 // BM_MlpGemm/{0,1,2}: one chunk's GEMMs of the neural-Gaussian MLPs on one thread (forward
 // x w1^T, weight gradient dh^T x, input gradient dh w1: 1024 rows, 54 inputs, 50 hidden), in
@@ -20,10 +22,15 @@
 #include <torch/csrc/autograd/profiler_legacy.h>
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <map>
 #include <memory>
+#include <sstream>
+#include <vector>
 
 #include "crpgs/components.h"
 #include "crpgs/registry.h"
@@ -64,6 +71,48 @@ std::unique_ptr<Trainer> make_shared_data_trainer(benchmark::State& state, Datas
     return nullptr;
   }
   return std::move(t).value();
+}
+
+/// Writes CRPGS_BENCH_OPS's table from the legacy profiler's push/pop events (per thread, nested).
+void write_op_table(const torch::autograd::profiler::thread_event_lists& lists,
+                    const std::string& path, double steps) {
+  using torch::autograd::profiler::EventKind;
+  using torch::autograd::profiler::LegacyEvent;
+  struct Row {
+    double self_us = 0;
+    int64_t calls = 0;
+  };
+  std::map<std::string, Row> rows;
+  for (const auto& events : lists) {
+    std::vector<std::pair<const LegacyEvent*, double>> open;  // push event, child time
+    for (const LegacyEvent& e : events) {
+      if (e.kind() == EventKind::PushRange) {
+        open.push_back({&e, 0.0});
+      } else if (e.kind() == EventKind::PopRange && !open.empty()) {
+        const auto [push, child_us] = open.back();
+        open.pop_back();
+        const double us = push->cpuElapsedUs(e);
+        std::ostringstream key;
+        key << push->name() << '\t';
+        for (const auto& shape : push->shapes()) {
+          key << '[';
+          for (size_t i = 0; i < shape.size(); ++i) key << (i ? "," : "") << shape[i];
+          key << ']';
+        }
+        Row& r = rows[key.str()];
+        r.self_us += us - child_us;
+        ++r.calls;
+        if (!open.empty()) open.back().second += us;
+      }
+    }
+  }
+  std::vector<std::pair<std::string, Row>> sorted(rows.begin(), rows.end());
+  std::sort(sorted.begin(), sorted.end(),
+            [](const auto& a, const auto& b) { return a.second.self_us > b.second.self_us; });
+  std::ofstream out(path);
+  out << "self_ms_per_step\tcalls_per_step\top\tinput_shapes\n";
+  for (const auto& [key, r] : sorted)
+    out << r.self_us / 1e3 / steps << '\t' << double(r.calls) / steps << '\t' << key << '\n';
 }
 
 /// Times the benchmark's iterations and reports it/s, the per-stage split and the model size.
@@ -162,6 +211,15 @@ void BM_TrainRun(benchmark::State& state) {
   std::unique_ptr<torch::autograd::profiler::RecordProfile> profile;
   if (const char* trace = std::getenv("CRPGS_BENCH_PROFILE"))
     profile = std::make_unique<torch::autograd::profiler::RecordProfile>(std::string(trace));
+  std::unique_ptr<torch::autograd::profiler::TLSLegacyProfilerGuard> ops;
+  if (const char* table = std::getenv("CRPGS_BENCH_OPS")) {
+    const double steps = env_or("CRPGS_BENCH_STEPS", 30);
+    ops = std::make_unique<torch::autograd::profiler::TLSLegacyProfilerGuard>(
+        torch::profiler::impl::ProfilerConfig(torch::profiler::impl::ProfilerState::CPU, true),
+        [path = std::string(table), steps](const auto& lists) {
+          write_op_table(lists, path, steps);
+        });
+  }
   time_steps(state, *t.value());
 }
 BENCHMARK(BM_TrainRun)

@@ -7,9 +7,9 @@
 #include <functional>
 
 #include "crpgs/anchor_model.h"
+#include "crpgs/chunked_mlp.h"
 #include "crpgs/components.h"
 #include "crpgs/scene_generator.h"
-#include "model/chunked_mlp.h"
 #include "model/sorted_gather.h"
 #include "raster/cpu_rasterizer.h"
 
@@ -133,6 +133,25 @@ TEST(ChunkedMlp, SameValuesAndGradientsAsLibtorch) {
   EXPECT_FALSE(y.requires_grad());
   EXPECT_TRUE(torch::allclose(
       y, torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4]), 1e-5, 1e-5));
+}
+
+// The chunks call BLAS directly with the bias written first, as at::addmm does: the forward is
+// libtorch's bit for bit (so the training arithmetic did not change with that).
+TEST(ChunkedMlp, ForwardIsLibtorchsBitForBit) {
+  torch::manual_seed(10);
+  for (int64_t rows : {1, 1024, 3000}) {
+    auto in = random_mlp(rows, torch::kFloat);
+    torch::NoGradGuard no_grad;
+    const auto got = chunked_mlp(in[0], in[1], in[2], in[3], in[4]);
+    // Row chunks of 1024, as chunked_mlp cuts them: a GEMM's rows do not change each other.
+    std::vector<torch::Tensor> parts;
+    for (int64_t first = 0; first < rows; first += 1024) {
+      const auto x = in[0].narrow(0, first, std::min<int64_t>(1024, rows - first));
+      parts.push_back(
+          torch::addmm(in[4], torch::relu(torch::addmm(in[2], x, in[1].t())), in[3].t()));
+    }
+    EXPECT_TRUE(torch::equal(got, torch::cat(parts))) << "rows " << rows;
+  }
 }
 
 TEST(ChunkedMlp, SameResultsWithOneAndTwoThreads) {

@@ -238,12 +238,24 @@ TEST(HashGridComponent, PartialForwardMatchesForward) {
 
   // Both parts reach the grid table and the output layer: the tail through its three rows of
   // weight2, the picked rows through all of them.
-  (part.tail.sum() + picked.sum()).backward();
+  const auto weights = torch::randn({400, 3}, torch::TensorOptions().dtype(torch::kFloat));
+  (part.tail * weights).sum().add(picked.sum()).backward();
   const auto params = grid->parameters();
   EXPECT_GT(params[0].grad().abs().sum().item<float>(), 0.f);
   const auto w2_grad = params[3].grad();
   EXPECT_GT(w2_grad.slice(0, 0, 172).abs().sum().item<float>(), 0.f);
   EXPECT_GT(w2_grad.slice(0, 172).abs().sum().item<float>(), 0.f);
+  // The same gradients as the whole forward() (the tail runs through chunked_mlp's backward).
+  std::vector<torch::Tensor> partial_grads;
+  for (auto& p : params) {
+    partial_grads.push_back(p.grad().clone());
+    p.mutable_grad() = torch::Tensor();
+  }
+  const auto whole = grid->forward(pos);
+  (whole.slice(1, 172) * weights).sum().add(whole.index_select(0, rows).sum()).backward();
+  for (size_t i = 0; i < params.size(); ++i)
+    EXPECT_TRUE(torch::allclose(partial_grads[i], params[i].grad(), 1e-4, 1e-5))
+        << "parameter " << i;
 }
 
 // The codec's arithmetic: the grid lookup (portable already) and the MLP as portable_linear,

@@ -7,6 +7,7 @@
 #include <torch/torch.h>
 
 #include "binary_grid.h"
+#include "crpgs/chunked_mlp.h"
 #include "crpgs/coding/bitstream.h"
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
@@ -78,11 +79,17 @@ class HashGridContext final : public ContextModel {
 
   PartialOutput forward_partial(const torch::Tensor& positions01, int64_t tail) override {
     TORCH_CHECK(tail >= 0 && tail <= width_, "hash_grid: tail must be in [0, ", width_, "]");
-    auto h = hidden(positions01);
+    check_positions(positions01);
+    const auto feat = hash_grid::grid_lookup(spec_, positions01, table_, grid_.binarize);
     const int64_t first = width_ - tail;
-    auto out_tail = torch::linear(h, l2_->weight.slice(0, first), l2_->bias.slice(0, first));
-    return {out_tail, [h, w = l2_->weight, b = l2_->bias](const torch::Tensor& rows) {
-              return torch::linear(h.index_select(0, rows), w, b);
+    // Every visible anchor's tail (its quantisation steps) in one chunked pass: the [N, hidden]
+    // activations, their ReLU, its gradient and the bias sums stay in cache-sized chunks (as
+    // separate libtorch ops they cost ~40 % of the rate phase's context work, docs/performance.md).
+    // The few rows wanted whole (the rate subset) recompute their hidden layer.
+    auto out_tail = chunked_mlp(feat, l1_->weight, l1_->bias, l2_->weight.slice(0, first),
+                                l2_->bias.slice(0, first));
+    return {out_tail, [feat, l1 = l1_, l2 = l2_](const torch::Tensor& rows) mutable {
+              return l2->forward(torch::relu(l1->forward(feat.index_select(0, rows))));
             }};
   }
 

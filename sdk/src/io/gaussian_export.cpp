@@ -10,7 +10,7 @@
 
 #include "core/shuffle.h"
 #include "crpgs/image_tensor.h"
-#include "model/chunked_mlp.h"
+#include "crpgs/chunked_mlp.h"
 #include "model/optimizer.h"
 
 namespace crpgs {

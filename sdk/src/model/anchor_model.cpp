@@ -5,7 +5,7 @@
 
 #include "crpgs/links.h"
 #include "model/adam_kernel.h"
-#include "model/chunked_mlp.h"
+#include "crpgs/chunked_mlp.h"
 #include "model/optimizer.h"
 #include "model/sorted_gather.h"
 

@@ -1,12 +1,15 @@
 /// @file chunked_mlp.cpp
 /// @brief chunked_mlp: forward and backward of the two-layer MLPs, chunk by chunk.
-#include "model/chunked_mlp.h"
+#include "crpgs/chunked_mlp.h"
 
 #include <torch/torch.h>
 
 #include <ATen/Parallel.h>
 
+#include <dlfcn.h>
+
 #include <algorithm>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -26,6 +29,66 @@ int64_t chunk_count(int64_t rows) {
   return (rows + kChunkRows - 1) / kChunkRows;
 }
 
+// The BLAS libtorch calls (Fortran interface, found at run time as runtime.cpp finds OpenBLAS);
+// null where libtorch links its BLAS privately (then gemm goes through ATen).
+template <typename T>
+using FortranGemm = void (*)(const char*, const char*, const int*, const int*, const int*, const T*,
+                             const T*, const int*, const T*, const int*, const T*, T*, const int*);
+template <typename T>
+FortranGemm<T> fortran_gemm() {
+  static const auto f = reinterpret_cast<FortranGemm<T>>(
+      dlsym(RTLD_DEFAULT, std::is_same_v<T, float> ? "sgemm_" : "dgemm_"));
+  return f;
+}
+
+// c = a b, or c += a b with accumulate; each of a, b a row-major matrix or a .t() view of one,
+// c row-major. The chunk loops make a few hundred of these per iteration: a direct BLAS call
+// skips ATen's dispatch, views and checks (~10k small operators per iteration). The BLAS call
+// is the one at::mm makes for the same operands (row-major c as column-major c^T = b^T a^T).
+void gemm(const at::Tensor& a, const at::Tensor& b, at::Tensor& c, bool accumulate) {
+  const int64_t M = c.size(0), N = c.size(1), K = a.size(1);
+  auto layout = [](const at::Tensor& t, char* trans, int* ld) {
+    const bool row_major = t.stride(1) == 1 && (t.size(0) == 1 || t.stride(0) >= t.size(1));
+    *trans = row_major ? 'n' : 't';
+    *ld = int(std::max<int64_t>(1, row_major ? t.stride(0) : t.stride(1)));
+    return row_major || (t.stride(0) == 1 && t.stride(1) >= t.size(0));
+  };
+  char ta = 0, tb = 0;
+  int lda = 0, ldb = 0;
+  const bool plain = c.stride(1) == 1 && c.stride(0) >= N && layout(a, &ta, &lda) &&
+                     layout(b, &tb, &ldb) && M > 0 && N > 0 && K > 0;
+  AT_DISPATCH_FLOATING_TYPES(c.scalar_type(), "chunked_mlp_gemm", [&] {
+    const auto blas = fortran_gemm<scalar_t>();
+    if (!plain || !blas) {
+      if (accumulate) {
+        c.addmm_(a, b);
+      } else {
+        at::mm_out(c, a, b);
+      }
+      return;
+    }
+    const int m = int(N), n = int(M), k = int(K), ldc = int(c.stride(0));
+    const scalar_t one = 1, beta = accumulate ? 1 : 0;
+    blas(&tb, &ta, &m, &n, &k, &one, b.data_ptr<scalar_t>(), &ldb, a.data_ptr<scalar_t>(), &lda,
+         &beta, c.data_ptr<scalar_t>(), &ldc);
+  });
+}
+
+// h = max(0, x w1^T + b1) for one chunk, into row-major h: the bias written first and the
+// product added to it (as at::addmm_out does), the ReLU in place.
+void first_layer_forward(const at::Tensor& x, const at::Tensor& w1t, const at::Tensor& b1,
+                         at::Tensor& h) {
+  AT_DISPATCH_FLOATING_TYPES(h.scalar_type(), "chunked_mlp_bias", [&] {
+    const scalar_t* b = b1.data_ptr<scalar_t>();
+    const int64_t H = h.size(1), ld = h.stride(0);
+    scalar_t* out = h.data_ptr<scalar_t>();
+    for (int64_t r = 0; r < h.size(0); ++r) std::copy(b, b + H, out + r * ld);
+    gemm(x, w1t, h, true);
+    for (int64_t r = 0; r < h.size(0); ++r)
+      for (int64_t j = 0; j < H; ++j) out[r * ld + j] = std::max(out[r * ld + j], scalar_t(0));
+  });
+}
+
 // f(chunk, first row, row count) for every chunk, in parallel, each GEMM on the calling thread.
 template <typename F>
 void for_each_chunk(int64_t rows, const F& f) {
@@ -41,13 +104,12 @@ void for_each_chunk(int64_t rows, const F& f) {
 // Forward into h (after the ReLU) and y; every input is detached (no autograd in the workers).
 void forward_into(const at::Tensor& x, const at::Tensor& w1, const at::Tensor& b1,
                   const at::Tensor& w2, const at::Tensor& b2, at::Tensor& h, at::Tensor& y) {
-  const at::Tensor w1t = w1.t(), w2t = w2.t();
+  const at::Tensor w1t = w1.t(), w2t = w2.t(), b1c = b1.contiguous(), b2c = b2.contiguous();
   for_each_chunk(x.size(0), [&](int64_t, int64_t first, int64_t n) {
     at::Tensor hc = h.narrow(0, first, n);
-    at::addmm_out(hc, b1, x.narrow(0, first, n), w1t);
-    hc.clamp_min_(0);
+    first_layer_forward(x.narrow(0, first, n), w1t, b1c, hc);
     at::Tensor yc = y.narrow(0, first, n);
-    at::addmm_out(yc, b2, hc, w2t);
+    at::addmm_out(yc, b2c, hc, w2t);
   });
 }
 
@@ -69,8 +131,8 @@ void first_layer_backward(at::Tensor& dh, const at::Tensor& h, const at::Tensor&
     sparse_head::relu_backward(h.data_ptr<scalar_t>(), dh.size(0), dh.size(1),
                                dh.data_ptr<scalar_t>(), db1.data_ptr<scalar_t>());
   });
-  at::mm_out(dw1, dh.t(), x);
-  if (dx.defined()) at::mm_out(dx, dh, w1);
+  gemm(dh.t(), x, dw1, false);
+  if (dx.defined()) gemm(dh, w1, dx, false);
 }
 
 struct ChunkedMlp : public torch::autograd::Function<ChunkedMlp> {
@@ -103,10 +165,11 @@ struct ChunkedMlp : public torch::autograd::Function<ChunkedMlp> {
       const at::Tensor dyc = dy.narrow(0, first, n), hc = h.narrow(0, first, n);
       const at::Tensor xc = x.narrow(0, first, n);
       at::Tensor part = dw2[c];
-      at::mm_out(part, dyc.t(), hc);
+      gemm(dyc.t(), hc, part, false);
       part = db2[c];
       at::sum_out(part, dyc, 0);
-      at::Tensor dh = at::mm(dyc, w2);
+      at::Tensor dh = at::empty({n, H}, opt);
+      gemm(dyc, w2, dh, false);
       first_layer_backward(dh, hc, xc, w1, dw1[c], db1[c],
                            dx.defined() ? dx.narrow(0, first, n) : at::Tensor());
     });
@@ -149,11 +212,10 @@ std::pair<at::Tensor, at::Tensor> sparse_forward(const at::Tensor& x, const at::
                                  b2c.data_ptr<float>(),
                                  row.data_ptr<int64_t>(),
                                  slot.data_ptr<int64_t>()};
-  const at::Tensor w1t = w1.t();
+  const at::Tensor w1t = w1.t(), b1c = b1.contiguous();
   for_each_chunk(rows, [&](int64_t c, int64_t first, int64_t n) {
     at::Tensor hc = h.narrow(0, first, n);
-    at::addmm_out(hc, b1, x.narrow(0, first, n), w1t);
-    hc.clamp_min_(0);
+    first_layer_forward(x.narrow(0, first, n), w1t, b1c, hc);
     sparse_head::forward(layer, g_first[size_t(c)], g_first[size_t(c) + 1], y.data_ptr<float>());
   });
   return {h, y};
