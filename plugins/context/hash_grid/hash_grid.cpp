@@ -83,13 +83,14 @@ class HashGridContext final : public ContextModel {
     const auto feat = hash_grid::grid_lookup(spec_, positions01, table_, grid_.binarize);
     const int64_t first = width_ - tail;
     // Every visible anchor's tail (its quantisation steps) in one chunked pass: the [N, hidden]
-    // activations, their ReLU, its gradient and the bias sums stay in cache-sized chunks (as
-    // separate libtorch ops they cost ~40 % of the rate phase's context work, docs/performance.md).
-    // The few rows wanted whole (the rate subset) recompute their hidden layer.
+    // activations, their ReLU, its gradient and the bias sums stay in cache-sized chunks instead
+    // of [N, hidden] libtorch temporaries (bench/results/train_fern.md, session 37). The few rows
+    // wanted whole (the rate subset) look their grid features up again, so that `feat` has one
+    // consumer and no [N, grid width] gradient is zeroed and summed for them.
     auto out_tail = chunked_mlp(feat, l1_->weight, l1_->bias, l2_->weight.slice(0, first),
                                 l2_->bias.slice(0, first));
-    return {out_tail, [feat, l1 = l1_, l2 = l2_](const torch::Tensor& rows) mutable {
-              return l2->forward(torch::relu(l1->forward(feat.index_select(0, rows))));
+    return {out_tail, [this, positions01](const torch::Tensor& rows) {
+              return l2_->forward(hidden(positions01.index_select(0, rows)));
             }};
   }
 
