@@ -129,7 +129,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const Run
   std::printf("trained %d iterations in %s; checkpoint: %s\n", t.iteration(),
               format_duration(train_s).c_str(), t.checkpoint_path().c_str());
   if (const StepTimes& tm = t.times(); tm.iterations > 0) {
-    // This process's iterations only (a resumed run's earlier processes are not in it).
+    // The stage split is this process's iterations only; the phases span the whole run.
     const double ms = 1e3 / tm.iterations;
     std::printf(
         "time per iteration over %d iterations: MLPs %.1f ms, raster %.1f ms, loss+rate %.1f ms, "

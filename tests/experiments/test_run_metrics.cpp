@@ -24,6 +24,7 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   m.encode_seconds = 3.5;
   m.trace = {{10.5, 100, 18.25}, {20.0, 200, 21.0}};
   m.trace_views = {"view_000", "view_008"};
+  m.phases = {{"raw", 3000, 512.5}, {"fixed_noise", 7000, 1400.25}, {"rate", 30000, 15000}};
   m.peak_memory_bytes = peak_rss_bytes();
   EXPECT_GT(m.peak_memory_bytes, 0);
   m.rate_scale = 2.5;
@@ -57,6 +58,11 @@ TEST(RunMetrics, RoundTripsThroughJson) {
   EXPECT_EQ(r.trace[1].iteration, 200);
   EXPECT_DOUBLE_EQ(r.trace[0].seconds, 10.5);
   EXPECT_EQ(r.trace_views, m.trace_views);
+  ASSERT_EQ(r.phases.size(), 3u);
+  EXPECT_EQ(r.phases[1].name, "fixed_noise");
+  EXPECT_EQ(r.phases[1].iterations, 7000);
+  EXPECT_DOUBLE_EQ(r.phases[1].seconds, 1400.25);
+  EXPECT_EQ(r.phases[2].iterations, 30000);
   EXPECT_EQ(r.peak_memory_bytes, m.peak_memory_bytes);
   EXPECT_EQ(r.rate_scale, 2.5);
   EXPECT_EQ(r.base_method, m.base_method);
@@ -123,6 +129,10 @@ TEST(RunMetrics, RejectsIncompleteDocuments) {
       run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10}").ok());
   EXPECT_FALSE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
                                      "\"psnr_mean\": 30, \"trace\": [[1, 2]]}")
+                   .ok());
+  EXPECT_FALSE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "
+                                     "\"psnr_mean\": 30, \"phases\": [{\"name\": \"rate\", "
+                                     "\"iterations\": -1, \"seconds\": 2}]}")
                    .ok());
   EXPECT_FALSE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", ").ok());  // truncated
   EXPECT_TRUE(run_metrics_from_json("{\"format\": \"crpgs.run_metrics/1\", \"size_bytes\": 10, "

@@ -739,6 +739,13 @@ TEST(Trainer, TrainingClockAndPsnrTraceSurviveAResume) {
   }
   EXPECT_EQ(trace[1].seconds, first->psnr_trace()[1].seconds);
   EXPECT_GT(resumed->elapsed_seconds(), spent);
+  // The time per phase of the schedule spans both processes, as the clock does.
+  const StepTimes &before = first->times(), &after = resumed->times();
+  EXPECT_EQ(before.phase_iterations[0] + before.phase_iterations[1] + before.phase_iterations[2],
+            10);
+  EXPECT_EQ(after.phase_iterations[0] + after.phase_iterations[1] + after.phase_iterations[2], 20);
+  EXPECT_EQ(after.iterations, 10);  // the stage split: this process's steps
+  for (size_t p = 0; p < 3; ++p) EXPECT_GE(after.phase_seconds[p], before.phase_seconds[p]) << p;
 }
 
 TEST(Trainer, PsnrTraceIsTheMeanOfEvenlySpacedTestViews) {

@@ -137,7 +137,8 @@ struct StepTimes {
   double optimizer = 0;  ///< statistics, growing/pruning, Adam
   int iterations = 0;
   /// Whole steps (link builds included) per phase of the schedule, in QuantPhase order: raw
-  /// attributes (it <= quant_start), fixed noise (<= rate_start), the rate phase.
+  /// attributes (it <= quant_start), fixed noise (<= rate_start), the rate phase. Unlike the
+  /// fields above, over the whole run: a checkpoint carries them to the resumed process.
   std::array<double, 3> phase_seconds{};
   std::array<int, 3> phase_iterations{};
 };

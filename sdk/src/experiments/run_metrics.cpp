@@ -119,6 +119,13 @@ std::string to_json(const RunMetrics& in) {
   w.key("decode_seconds").value(m.decode_seconds);
   w.key("render_seconds_per_view").value(m.render_seconds_per_view);
   w.key("peak_memory_bytes").value(m.peak_memory_bytes);
+  if (!m.phases.empty()) {
+    w.key("phases").begin_array();
+    for (const auto& ph : m.phases)
+      w.raw("{\"name\": " + io::json_quote(ph.name) + ", \"iterations\": " +
+            std::to_string(ph.iterations) + ", \"seconds\": " + io::json_number(ph.seconds) + "}");
+    w.end_array();
+  }
   w.key("views").begin_array();
   for (const auto& v : m.views) {
     w.raw("{\"name\": " + io::json_quote(v.name) + ", \"psnr\": " + io::json_number(v.psnr) +
@@ -196,6 +203,14 @@ StatusOr<RunMetrics> run_metrics_from_json(const std::string& text) {
     for (const auto& v : views->array) {
       if (!v.is_object()) return Status(StatusCode::kInvalidArgument, "metrics: bad view entry");
       m.views.push_back({str(v, "name"), num(v, "psnr"), num(v, "ssim"), num(v, "render_seconds")});
+    }
+  if (const JsonValue* phases = doc.find("phases"); phases && phases->is_array())
+    for (const auto& ph : phases->array) {
+      const double it = ph.is_object() ? num(ph, "iterations") : NAN;
+      if (!ph.is_object() || !(it >= 0 && it <= 2147483647.0) || !(num(ph, "seconds") >= 0))
+        return Status(StatusCode::kInvalidArgument,
+                      "metrics: phases entries must be {name, iterations, seconds}");
+      m.phases.push_back({str(ph, "name"), int(it), num(ph, "seconds")});
     }
   if (const JsonValue* trace = doc.find("trace"); trace && trace->is_array())
     for (const auto& t : trace->array) {

@@ -9,8 +9,8 @@
 #include <torch/nn/functional/normalization.h>
 
 #include "core/shuffle.h"
-#include "crpgs/image_tensor.h"
 #include "crpgs/chunked_mlp.h"
+#include "crpgs/image_tensor.h"
 #include "model/optimizer.h"
 
 namespace crpgs {

@@ -3,20 +3,23 @@
 /// pruning, and a small Adam whose per-row state is grown and pruned with the anchors.
 #include "crpgs/anchor_model.h"
 
+#include "crpgs/chunked_mlp.h"
 #include "crpgs/links.h"
 #include "model/adam_kernel.h"
-#include "crpgs/chunked_mlp.h"
 #include "model/optimizer.h"
 #include "model/sorted_gather.h"
 
 #include <torch/torch.h>
 
+#include <ATen/CPUGeneratorImpl.h>
 #include <ATen/Parallel.h>
+#include <ATen/core/PhiloxRNGEngine.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <optional>
 
 namespace crpgs {
@@ -39,6 +42,34 @@ void init_linear(torch::Tensor& w, torch::Tensor& b, int64_t in, int64_t out,
   const double bound = 1.0 / std::sqrt(double(in));
   w = torch::empty({out, in}).uniform_(-bound, bound, gen);
   b = torch::empty({out}).uniform_(-bound, bound, gen);
+}
+
+// Uniform [0, 1) floats on the CPU: one 64-bit draw from `g` (the global generator when empty)
+// keys a Philox stream, cut into fixed chunks filled in parallel. torch::rand's Mersenne twister
+// makes one value at a time on one thread (~12 ms of a rate-phase iteration on fern, 2M values;
+// bench/results/train_fern.md); these values depend on the key and their index only, not on the
+// thread count, and the run's generator advances by one draw per call.
+torch::Tensor uniform_floats(at::IntArrayRef sizes, const c10::optional<at::Generator>& g) {
+  uint64_t key = 0;
+  {
+    auto* gen =
+        at::get_generator_or_default<at::CPUGeneratorImpl>(g, at::detail::getDefaultCPUGenerator());
+    std::lock_guard<std::mutex> lock(gen->mutex_);
+    key = gen->random64();
+  }
+  auto out = torch::empty(sizes, torch::kFloat);
+  float* p = out.data_ptr<float>();
+  const int64_t n = out.numel();
+  constexpr int64_t kChunk = 1 << 14;
+  at::parallel_for(0, (n + kChunk - 1) / kChunk, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t c = begin; c < end; ++c) {
+      at::philox_engine engine(key, uint64_t(c));
+      const int64_t last = std::min(n, (c + 1) * kChunk);
+      for (int64_t i = c * kChunk; i < last; ++i)
+        p[i] = float(engine() >> 8) * (1.0f / 16777216.0f);  // 24 bits: exact in a float
+    }
+  });
+  return out;
 }
 
 Mlp make_mlp(int64_t in, int64_t hidden, int64_t out, torch::Generator& gen) {
@@ -196,7 +227,7 @@ struct AnchorModel::Impl {
   // Uniform [0, 1) floats drawn on the CPU from `g` (the global generator when empty) and moved
   // to the model's device: the draws, and so a run's randomness, are the same on every device.
   torch::Tensor rand(at::IntArrayRef sizes, const c10::optional<at::Generator>& g) const {
-    return torch::rand(sizes, g).to(anchor.device());
+    return uniform_floats(sizes, g).to(anchor.device());
   }
   void lr_for(ParamGroup& g, int it) const;
   c10::optional<at::Generator> gen_opt() const {

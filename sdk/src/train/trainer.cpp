@@ -300,6 +300,12 @@ StatusOr<std::string> Trainer::serialize_state() const {
     ar.write("rng", gen_.get_state());
     ar.write("replay_salt", torch::tensor(int64_t(replay_salt_), torch::kLong));
     ar.write("elapsed_seconds", torch::tensor(elapsed_, torch::kDouble));
+    ar.write("phase_seconds", torch::tensor(std::vector<double>(times_.phase_seconds.begin(),
+                                                                times_.phase_seconds.end()),
+                                            torch::kDouble));
+    ar.write("phase_iterations", torch::tensor(std::vector<int64_t>(times_.phase_iterations.begin(),
+                                                                    times_.phase_iterations.end()),
+                                               torch::kLong));
     ar.write("build_id", text_tensor(code_build_id()));
     ar.write("config_hash", text_tensor(options_.config_hash));
     ar.write("execution", text_tensor(execution()));
@@ -373,7 +379,7 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     gen_.clone().set_state(rng);  // throws on a malformed state
     // Older checkpoints have none of these; a roll-back keeps the clock (that time was spent).
     torch::Tensor elapsed, trace, build, config, salt, mixed, execution, origin_text, key,
-        trace_count;
+        trace_count, phase_s, phase_it;
     const uint64_t replay_salt =
         ar.try_read("replay_salt", salt) ? uint64_t(salt.item<int64_t>()) : 0;
     std::string build_id = ar.try_read("build_id", build) ? tensor_text(build) : "";
@@ -390,6 +396,21 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
                               (!rollback && other_key);
     const double elapsed_seconds =
         ar.try_read("elapsed_seconds", elapsed) ? elapsed.item<double>() : 0;
+    std::array<double, 3> phase_seconds{};
+    std::array<int, 3> phase_iterations{};
+    if (ar.try_read("phase_seconds", phase_s) && ar.try_read("phase_iterations", phase_it)) {
+      if (phase_s.numel() != 3 || phase_it.numel() != 3)
+        return Status(StatusCode::kCorruptBitstream,
+                      origin + ": bad phase times in the checkpoint");
+      for (int64_t p = 0; p < 3; ++p) {
+        phase_seconds[size_t(p)] = phase_s[p].item<double>();
+        const int64_t n = phase_it[p].item<int64_t>();
+        if (!(phase_seconds[size_t(p)] >= 0) || n < 0 || n > INT32_MAX)
+          return Status(StatusCode::kCorruptBitstream,
+                        origin + ": bad phase times in the checkpoint");
+        phase_iterations[size_t(p)] = int(n);
+      }
+    }
     std::vector<PsnrPoint> psnr_trace;
     if (ar.try_read("psnr_trace", trace) && trace.dim() == 2 && trace.size(1) == 3) {
       auto acc = trace.to(torch::kDouble).contiguous();
@@ -430,7 +451,11 @@ Status Trainer::restore_state(const std::vector<uint8_t>& bytes, const std::stri
     mixed_config_ = mixed_config;
     // Another state: train() snapshots it anew, even when its own snapshot has this iteration.
     if (!rollback) last_good_iteration_ = -1;
-    if (!rollback) elapsed_ = elapsed_seconds;
+    if (!rollback) {
+      elapsed_ = elapsed_seconds;
+      times_.phase_seconds = phase_seconds;
+      times_.phase_iterations = phase_iterations;
+    }
     psnr_trace_ = std::move(psnr_trace);
     trace_view_count_ = trace_view_count;
   } catch (const std::exception& e) {

@@ -50,6 +50,14 @@ struct TracePoint {
   double psnr = 0;  ///< dB, mean over RunMetrics::trace_views, 8-bit round trip
 };
 
+/// Training time spent in one phase of the schedule (docs/method.md, the quantisation phases):
+/// whole steps, link builds included, evaluation excluded; resumed processes included.
+struct PhaseTime {
+  std::string name;  ///< "raw", "fixed_noise" or "rate"
+  int iterations = 0;
+  double seconds = 0;
+};
+
 /// Where a result came from, for its record to be rerun and compared.
 struct Provenance {
   std::string version;  ///< crpgs version, e.g. "0.1.0"; empty: not recorded (older runs)
@@ -87,6 +95,8 @@ struct RunMetrics {
   double decode_seconds = NAN;
   /// Mean of views[].render_seconds (filled from views if NaN).
   double render_seconds_per_view = NAN;
+  /// Per phase of the schedule, in order (runs with a rate model; older files: empty).
+  std::vector<PhaseTime> phases;
   std::vector<TracePoint> trace;
   /// The test views the trace averages (Trainer::trace_views). Files from before it was
   /// recorded traced the first test view alone: read as views[0]'s name.
