@@ -102,7 +102,8 @@ int info(const GlobalOptions& g, const std::string& path, bool verbose) {
   }
   print_table(cats);
   if (const coding::Section* ls = ct->find("LINK")) {
-    // COHS side information (method.md §6.4): the link vector (and the paper's active-anchor mask).
+    // COHS side information (docs/method.md §6.4): the link vector (and the paper's active-anchor
+    // mask).
     const coding::Section* as = ct->find("AMSK");
     const uint64_t side = ls->file_size + (as ? as->file_size : 0);
     auto links = link_vector_of(*ls);

@@ -136,7 +136,7 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const Run
         "backward %.1f ms, optimizer+densify %.1f ms\n",
         tm.iterations, tm.generate * ms, tm.render * ms, tm.loss * ms, tm.backward * ms,
         tm.optimizer * ms);
-    if (t.model().has_rate()) {  // the phases of method.md §2.3
+    if (t.model().has_rate()) {  // the phases of docs/method.md §2.3
       static const char* const kPhase[3] = {"raw attributes", "fixed noise", "rate phase"};
       std::printf("speed by phase:");
       const char* sep = " ";

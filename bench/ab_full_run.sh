@@ -6,10 +6,11 @@
 # it was stopped); finished runs are kept. Prints per run the training time, its split by phase
 # (metrics.json "phases"; builds before that field print "-") and B/A.
 #   bench/ab_full_run.sh A_PREFIX B_PREFIX OUT_DIR [REPS] [SCHEDULE]
-# A prefix is an install directory (cmake --install build --prefix DIR) with bin/crpgs.
+# A prefix is an install directory (cmake --install build --prefix DIR) with bin/crpgs, or a
+# copy of a build's bin/ and lib/ (its libraries are found through LD_LIBRARY_PATH).
 # SCHEDULE: full (default) or fast (the quick check). Env CONFIGS (default "crpgs hac").
 set -uo pipefail
-[ $# -ge 3 ] || { sed -n 2,11p "$0"; exit 2; }
+[ $# -ge 3 ] || { sed -n 2,12p "$0"; exit 2; }
 a=$1 b=$2 out=$3 reps=${4:-1} schedule=${5:-full}
 root=$(cd "$(dirname "$0")/.." && pwd)
 for config in ${CONFIGS:-crpgs hac}; do
@@ -22,7 +23,7 @@ for config in ${CONFIGS:-crpgs hac}; do
       mkdir -p "$dir"
       resume=""
       [ -f "$dir/checkpoint.pt" ] && resume=--resume
-      (cd "$root" && "$prefix/bin/crpgs" train -c "configs/$config.yaml" -o "$dir" $resume \
+      (cd "$root" && LD_LIBRARY_PATH=$prefix/lib "$prefix/bin/crpgs" train -c "configs/$config.yaml" -o "$dir" $resume \
         --set train.schedule="$schedule" --set train.threads=2 --set rasterizer.threads=2 \
         >> "$dir/stdout.log" 2>> "$dir/stderr.log") &
     done

@@ -117,7 +117,7 @@ TEST(Codec, RoundTripIsBitExactWithAnyThreadCount) {
   EXPECT_EQ(enc->estimated_vs_coded_bits.size(), 3u);
 }
 
-// method.md §6.4: roots, then free anchors, then leaves, each group in canonical index order.
+// docs/method.md §6.4: roots, then free anchors, then leaves, each group in canonical index order.
 TEST(Codec, CodingOrderIsRootsThenFreeThenLeaves) {
   // 7 anchors: leaves 1 -> root 4 and 5 -> root 0; anchors 2, 3, 6 are free.
   const auto links = torch::tensor({-1, 4, -1, -1, -1, 0, -1}, torch::kInt);

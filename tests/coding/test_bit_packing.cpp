@@ -1,5 +1,5 @@
 /// @file test_bit_packing.cpp
-/// @brief Fixed-width bit packing and the COHS link vector (method.md §7.11).
+/// @brief Fixed-width bit packing and the COHS link vector (docs/method.md §7.11).
 #include <gtest/gtest.h>
 
 #include <algorithm>

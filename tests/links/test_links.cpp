@@ -1,6 +1,6 @@
 /// @file test_links.cpp
 /// @brief Anchor-link algorithms (crpgs/links.h): cosine and nearest candidates against brute
-/// force, the numerical-stability cases of method.md (zero-norm and identical features, fewer
+/// force, the numerical-stability cases of docs/method.md (zero-norm and identical features, fewer
 /// anchors than M, everything masked), Algorithm 1's decaying threshold on hand-made examples,
 /// one hop and one-to-one on clustered data, thread-count independence, random pairing, and the
 /// validity check's messages; the link_* plugins through the registry.

@@ -1,4 +1,4 @@
-// Rate path of the anchor model (method.md §2): training-time noise per phase, the rate term,
+// Rate path of the anchor model (docs/method.md §2): training-time noise per phase, the rate term,
 // the mask loss, test-time quantisation (quantize) and the decoder-side model (from_decoded).
 #include <gtest/gtest.h>
 #include <torch/torch.h>

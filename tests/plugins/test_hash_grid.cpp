@@ -48,7 +48,7 @@ TEST(HashGridSpec, MatchesHacLayout) {
   EXPECT_EQ(s.levels[12].size, 16904);  // 130^2 = 16900 rounded up to a multiple of 8
   EXPECT_TRUE(s.levels[12].dense);
   EXPECT_FALSE(s.levels[13].dense);
-  EXPECT_EQ(s.n_entries * s.n_features, 1766272);  // method.md §2.1
+  EXPECT_EQ(s.n_entries * s.n_features, 1766272);  // docs/method.md §2.1
   // Planes read xy, xz, yz in that order.
   EXPECT_EQ(s.levels[16].axes[0], 0);
   EXPECT_EQ(s.levels[16].axes[1], 2);

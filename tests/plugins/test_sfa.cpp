@@ -1,5 +1,5 @@
 /// @file test_sfa.cpp
-/// @brief The `sfa` feature model (Shared Feature Aggregation, method.md §6.1): dimensions per
+/// @brief The `sfa` feature model (Shared Feature Aggregation, docs/method.md §6.1): dimensions per
 /// ratio, ratio 0 is exactly `identity`, output layout [f_s, coded], clamped positions,
 /// gradients (straight-through table, Linear, coded), B_h, save/load, corrupt states, thread
 /// independence; all through the registry.

@@ -1,6 +1,6 @@
-// CRP-GS links in the rate path (method.md §6.2-§6.4, §7.6-§7.13): links built on the schedule,
-// the leaf model and its fallback, sanitising at encode time, and a bitstream with links that
-// decodes (another thread count) to exactly the training-side quantised model.
+// CRP-GS links in the rate path (docs/method.md §6.2-§6.4, §7.6-§7.13): links built on the
+// schedule, the leaf model and its fallback, sanitising at encode time, and a bitstream with links
+// that decodes (another thread count) to exactly the training-side quantised model.
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
@@ -217,7 +217,7 @@ TEST(LinksTraining, LeafOfAMaskedRootFallsBackToTheBaseModel) {
     EXPECT_TRUE(torch::equal(mu[0], base[0])) << "inactive root: the base model";
     EXPECT_GT(mu[1].abs().sum().item<double>(), 0);
   }
-  // Encoding drops the link of the now inactive root (method.md §7.10).
+  // Encoding drops the link of the now inactive root (docs/method.md §7.10).
   auto coded = coded_model_from(m);
   ASSERT_TRUE(coded.ok()) << coded.status().to_string();
   EXPECT_EQ(count_links(coded->links).leaves, leaves.size(0) - 1);
@@ -328,7 +328,7 @@ TEST(LinksTraining, EncoderDropsExactlyTheLinksThatCostMoreThanTheySave) {
   EXPECT_TRUE(torch::equal(dec->model.links, some->links));
   EXPECT_TRUE(torch::equal(dec->model.feature_sym, some->feature_sym));
 
-  // Two leaves on one root break method.md §6.2's one-to-one rule: not encoded.
+  // Two leaves on one root break docs/method.md §6.2's one-to-one rule: not encoded.
   CodedModel shared = some.value();
   const auto leaves = (shared.links >= 0).nonzero().view(-1);
   ASSERT_GE(leaves.size(0), 2);
@@ -442,7 +442,7 @@ TEST(ShippedConfigs, SharedFeatureWithRecomputedBoundsIsFlagged) {
 }
 
 // Every shipped config validates against the schemas of the built components, and the CRP-GS
-// configs say what method.md §6-§7 prescribes.
+// configs say what docs/method.md §6-§7 prescribes.
 TEST(ShippedConfigs, ResolveAndFollowTheMethod) {
   const auto& reg = test::rate_registry();
   for (const char* type : {"link_cohs", "link_random", "link_distance", "link_none"})

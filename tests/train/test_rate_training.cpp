@@ -1,4 +1,4 @@
-// Training with the rate path (method.md §2.3-§2.6): phase switching, the rate and mask terms
+// Training with the rate path (docs/method.md §2.3-§2.6): phase switching, the rate and mask terms
 // acting on a tiny generated scene, quantised evaluation, config wiring.
 #include <gtest/gtest.h>
 #include <torch/torch.h>

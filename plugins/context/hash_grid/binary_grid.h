@@ -1,5 +1,5 @@
 /// @file binary_grid.h
-/// @brief HAC's binary hash grid as a trainable table (method.md §2.1, §2.5), shared by the
+/// @brief HAC's binary hash grid as a trainable table (docs/method.md §2.1, §2.5), shared by the
 /// `hash_grid` context plugin and the `sfa` feature plugin: its configuration keys, the
 /// autograd lookup, the rate estimate B_h and the table's coding in a component state.
 #pragma once

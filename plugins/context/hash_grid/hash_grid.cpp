@@ -1,7 +1,7 @@
 /// @file hash_grid.cpp
 /// @brief Context plugin `hash_grid`: HAC's binary multi-resolution hash grid (xyz grid + xy, xz,
 /// yz planes, sign-binarised with a straight-through gradient) followed by the context MLP
-/// `mlp_grid` that predicts the entropy parameters (method.md §2.1, §2.2, §2.5).
+/// `mlp_grid` that predicts the entropy parameters (docs/method.md §2.1, §2.2, §2.5).
 #include <stdexcept>
 
 #include <torch/torch.h>

@@ -1,5 +1,5 @@
 /// @file hash_grid_kernels.h
-/// @brief HAC's binary multi-resolution hash grid (method.md §2.1): the level layout, fast CPU
+/// @brief HAC's binary multi-resolution hash grid (docs/method.md §2.1): the level layout, fast CPU
 /// forward/backward kernels and a pure-ATen reference of the same maths (used on CUDA tensors
 /// and as the tests' oracle).
 #pragma once

@@ -1,6 +1,6 @@
 /// @file link_cohs.cpp
 /// @brief Context plugin `link_cohs`: CRP-GS's cosine one-to-one hierarchical structure (COHS,
-/// method.md §6.2). Top-M cosine-similar active anchors over the raw coded features, then the
+/// docs/method.md §6.2). Top-M cosine-similar active anchors over the raw coded features, then the
 /// greedy one-to-one matching of Algorithm 1 with the decaying threshold tau_max .. tau_min.
 #include <stdexcept>
 

@@ -1,5 +1,5 @@
 /// @file gaussian.cpp
-/// @brief HAC's conditional Gaussian entropy model (method.md §2.4): the likelihood of a value
+/// @brief HAC's conditional Gaussian entropy model (docs/method.md §2.4): the likelihood of a value
 /// quantised with step q is |Φ((x+q/2−μ)/σ) − Φ((x−q/2−μ)/σ)|, lower-bounded, bits = −log2 p.
 #include <cmath>
 

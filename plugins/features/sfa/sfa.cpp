@@ -1,5 +1,5 @@
 /// @file sfa.cpp
-/// @brief Feature plugin `sfa`: CRP-GS's Shared Feature Aggregation (method.md §6.1, §7 items
+/// @brief Feature plugin `sfa`: CRP-GS's Shared Feature Aggregation (docs/method.md §6.1, §7 items
 /// 2-4). f_s = Linear(96 -> D_s)(binary hash grid H_s at the clamped anchor position) is
 /// concatenated before the coded individual feature f_i: f_a = [f_s, f_i]. ratio 0 is plain HAC.
 #include <cmath>

@@ -1,8 +1,8 @@
 /// @file anchor_model.h
-/// @brief The Scaffold-GS anchor model as modified by HAC (method.md §1): anchors on a voxel grid
-/// with a coded feature, 6 log-scales, K offsets and K offset-mask logits; three MLPs that turn
-/// the visible anchors into neural Gaussians per view; anchor growing and pruning from training
-/// statistics; Adam with per-group log-linear learning-rate schedules.
+/// @brief The Scaffold-GS anchor model as modified by HAC (docs/method.md §1): anchors on a voxel
+/// grid with a coded feature, 6 log-scales, K offsets and K offset-mask logits; three MLPs that
+/// turn the visible anchors into neural Gaussians per view; anchor growing and pruning from
+/// training statistics; Adam with per-group log-linear learning-rate schedules.
 #pragma once
 
 #include <array>
@@ -32,7 +32,7 @@ struct SceneEffects {
   std::array<float, 3> background{0.f, 0.f, 0.f};
 };
 
-/// Learning rates (method.md §8). Decaying rates go log-linearly from *_init to *_final over
+/// Learning rates (docs/method.md §8). Decaying rates go log-linearly from *_init to *_final over
 /// `max_steps` iterations; offset and mask rates are multiplied by the spatial lr scale.
 struct LearningRates {
   double offset_init = 0.01, offset_final = 1e-4;
@@ -66,8 +66,8 @@ struct AnchorModelOptions {
   LearningRates lr;
 };
 
-/// HAC's rate path (config section `rate`, method.md §2.2-§2.6). Used only when a context and an
-/// entropy model are attached (AnchorModel::attach_rate).
+/// HAC's rate path (config section `rate`, docs/method.md §2.2-§2.6). Used only when a context and
+/// an entropy model are attached (AnchorModel::attach_rate).
 struct RateOptions {
   double lambda = 0.001;         ///< weight of the rate term (bits per parameter)
   double mask_lambda = 5e-4;     ///< weight of mean(sigmoid(mask logits))
@@ -81,7 +81,7 @@ struct RateOptions {
   double lr_context_mlp_init = 5e-3, lr_context_mlp_final = 1e-5;  ///< HAC mlp_grid
 };
 
-/// CRP-GS's anchor links (method.md §6.2-§6.3, §7.6-§7.10; config `rate.leaf_*`): a link
+/// CRP-GS's anchor links (docs/method.md §6.2-§6.3, §7.6-§7.10; config `rate.leaf_*`): a link
 /// strategy (a ContextModel's build_links) pairs leaves with roots; the leaf-feature mean comes
 /// from a leaf MLP conditioned on the root's quantised feature (LeafMlp).
 struct LinkOptions {
@@ -91,7 +91,7 @@ struct LinkOptions {
   bool residual = false;  ///< μ_l = μ_base + MLP(·), last layer zero-initialised
 };
 
-/// What generate(..., for_training = true) does to the attributes (method.md §2.3). Only used
+/// What generate(..., for_training = true) does to the attributes (docs/method.md §2.3). Only used
 /// when the rate path is attached; without it training always renders raw attributes.
 enum class QuantPhase {
   kRaw,            ///< it <= quant_start
@@ -131,7 +131,7 @@ struct NeuralGaussians {
   torch::Tensor used_offsets;   ///< [M, K, 3]
   torch::Tensor q_f, q_s, q_o;  ///< [M, 1] the noise steps; undefined when no noise was added
   /// Rate phase only (kAdaptiveNoise, training): bits per coded parameter of the random subset
-  /// of visible active anchors x the active fraction of the visible anchors (method.md §2.5),
+  /// of visible active anchors x the active fraction of the visible anchors (docs/method.md §2.5),
   /// differentiable; undefined otherwise. rate_subset: anchors in the subset.
   torch::Tensor bits_per_param;
   int64_t rate_subset = 0;
@@ -206,7 +206,7 @@ class AnchorModel {
   /// The feature model the MLPs' input comes from (shared with whoever created the model).
   std::shared_ptr<FeatureModel> feature_model() const;
 
-  // ---- Rate path (HAC, method.md §2) ----
+  // ---- Rate path (HAC, docs/method.md §2) ----
   /// Attaches a grid context (output width EntropyParamLayout{coded_dim, K}.width()) and an
   /// entropy model. The context's parameters join the optimizer: the first tensor of
   /// context->parameters() is the grid (schedule `context`, HAC encoding_xyz), the rest the
@@ -226,11 +226,11 @@ class AnchorModel {
   bool has_links() const;
   ContextModel* link_strategy() const;  ///< null without links
   /// (Re)builds the links from scratch from the current raw features, positions and activity
-  /// (method.md §7.6). Returns the number of leaves.
+  /// (docs/method.md §7.6). Returns the number of leaves.
   StatusOr<int64_t> rebuild_links(uint64_t seed);
   /// [N] int64: the model index of each anchor's root, or -1; undefined before the first build
   /// (and after growing/pruning, which invalidates them). During training, a leaf whose root is
-  /// inactive uses the base model (method.md §7.10).
+  /// inactive uses the base model (docs/method.md §7.10).
   torch::Tensor links() const;
   /// The leaf MLP (undefined without links).
   LeafMlp leaf_mlp() const;
@@ -245,7 +245,7 @@ class AnchorModel {
   /// bit-identical). Without one, the global generator is used.
   void set_generator(torch::Generator gen);
 
-  /// Test-time quantisation (method.md §2.2-§2.3), the canonical recipe the codec reproduces:
+  /// Test-time quantisation (docs/method.md §2.2-§2.3), the canonical recipe the codec reproduces:
   ///  1. rows: `index` (int64 model anchor indices, in evaluation order) or, when undefined, the
   ///     active anchors (any offset mask on) in increasing index order;
   ///  2. positions = round(anchor / v) * v in float32 with v = float(voxel_size());
@@ -283,14 +283,14 @@ class AnchorModel {
       const torch::Tensor& offset_masks, const std::map<std::string, torch::Tensor>& mlps,
       const torch::Tensor& bounds, double voxel_size);
 
-  /// Generates the neural Gaussians of the anchors visible from `camera` (method.md §1.2).
+  /// Generates the neural Gaussians of the anchors visible from `camera` (docs/method.md §1.2).
   /// `camera_index` selects the appearance embedding (training image index; ignored when the
   /// appearance effect is off; a negative index uses the mean embedding). With `for_training`,
   /// the batch carries a screen-space gradient holder for the statistics.
   NeuralGaussians generate(const Camera& camera, int camera_index, Rasterizer& rasterizer,
                            const RenderSettings& settings, bool for_training);
 
-  /// Accumulates the growing/pruning statistics after backward (method.md §1.4).
+  /// Accumulates the growing/pruning statistics after backward (docs/method.md §1.4).
   void accumulate_statistics(const NeuralGaussians& g, const RenderOutput& out,
                              const Camera& camera);
   /// Grows and prunes anchors, resets the statistics, keeps the optimizer state consistent.

@@ -1,5 +1,5 @@
 /// @file codec.h
-/// @brief The anchor-model bitstream (method.md §2.7, design.md "The bitstream"): what a
+/// @brief The anchor-model bitstream (docs/method.md §2.7, design.md "The bitstream"): what a
 /// quantised anchor model is on disk, and its exact inverse.
 ///
 /// Layout (a versioned container, every section with its component id, version, length, CRC):
@@ -21,7 +21,7 @@
 ///   FEAT / SCAL / OFFS  feature, scaling, offset symbols, entropy-coded in chunks of
 ///         `chunk` anchors; each chunk's (μ, σ, Q) are predicted from the decoded positions with
 ///         predict_entropy_params on exactly that chunk, on both sides
-/// With links the streams follow the decode order of method.md §6.4: roots, free anchors, then
+/// With links the streams follow the decode order of docs/method.md §6.4: roots, free anchors, then
 /// leaves (each group in canonical order and chunked on its own); a leaf's feature mean comes
 /// from the leaf MLP (MLPS) on its root's decoded feature. Without links it is canonical order.
 /// GEOM is Draco (component org.crpgs.geometry.draco) or raw fixed-width voxel integers

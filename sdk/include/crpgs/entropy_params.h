@@ -1,6 +1,6 @@
 /// @file entropy_params.h
-/// @brief HAC's per-anchor entropy parameters (method.md §2.2): the grid context's output split
-/// into means, scales and adaptive quantisation steps for features, scaling and offsets. One
+/// @brief HAC's per-anchor entropy parameters (docs/method.md §2.2): the grid context's output
+/// split into means, scales and adaptive quantisation steps for features, scaling and offsets. One
 /// function shared by training (rate term, quantised evaluation) and the codec, so the steps the
 /// model is evaluated with are exactly the ones in the bitstream.
 #pragma once
@@ -16,7 +16,7 @@
 
 namespace crpgs {
 
-/// Initial quantisation steps Q0 (method.md §2.2).
+/// Initial quantisation steps Q0 (docs/method.md §2.2).
 struct QuantSteps {
   double feature = 1.0, scaling = 0.001, offset = 0.2;
 };
@@ -60,7 +60,7 @@ EntropyParams predict_entropy_params(ContextModel& context, const torch::Tensor&
                                      int64_t chunk, Arithmetic arithmetic,
                                      StepForm steps = StepForm::kTwoSigmoid);
 
-/// CRP-GS's leaf-feature mean (method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
+/// CRP-GS's leaf-feature mean (docs/method.md §6.3, §7.8): μ_l = MLP([f̂_root; x_root; x_leaf]) with
 /// Linear(Dc + 6 → H) → ReLU → Linear(H → Dc), positions normalised by the anchor bounds; with
 /// `residual`, μ_l = μ_base + MLP(·). σ and Q of a leaf stay the base model's.
 struct LeafMlp {

@@ -1,7 +1,7 @@
 /// @file link_report.h
-/// @brief What the COHS root/leaf hierarchy buys in a coded model (method.md §6.4): the feature
-/// stream's bits by anchor group, and the leaves' bits with and without the leaf model, to set
-/// against the side information (AMSK + LINK) it costs.
+/// @brief What the COHS root/leaf hierarchy buys in a coded model (docs/method.md §6.4): the
+/// feature stream's bits by anchor group, and the leaves' bits with and without the leaf model, to
+/// set against the side information (AMSK + LINK) it costs.
 #pragma once
 
 #include "crpgs/codec.h"

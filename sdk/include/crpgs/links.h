@@ -1,7 +1,7 @@
 /// @file links.h
-/// @brief Anchor links (CRP-GS COHS, method.md §6.2): candidate retrieval (cosine top-M over the
-/// coded features, or k nearest anchors), the greedy one-to-one root/leaf matching of Algorithm 1,
-/// and the link-vector validity check. Shared by the link_* context plugins, the trainer and the
+/// @brief Anchor links (CRP-GS COHS, docs/method.md §6.2): candidate retrieval (cosine top-M over
+/// the coded features, or k nearest anchors), the greedy one-to-one root/leaf matching of Algorithm
+/// 1, and the link-vector validity check. Shared by the link_* context plugins, the trainer and the
 /// codec. Everything runs on CPU tensors (inputs on another device are copied) and is
 /// deterministic: the output does not depend on the number of threads.
 ///
@@ -42,8 +42,8 @@ struct NeighborLists {
 StatusOr<NeighborLists> nearest_neighbors(const torch::Tensor& points, const torch::Tensor& active,
                                           int64_t k, bool include_self);
 
-/// Top-M cosine-similar active anchors of every active anchor (method.md §7.5: self included, so
-/// M-1 others). features: [N, D]; active: [N] bool or undefined (all). Rows with zero norm or a
+/// Top-M cosine-similar active anchors of every active anchor (docs/method.md §7.5: self included,
+/// so M-1 others). features: [N, D]; active: [N] bool or undefined (all). Rows with zero norm or a
 /// non-finite entry have similarity -inf to everything: their list is empty and they are never a
 /// candidate. The [rows, N_active] float32 similarity block of the chunked matmul stays within
 /// memory_budget_bytes (at least one row). Scores are exact cosines of the features rounded to
@@ -60,10 +60,10 @@ StatusOr<LinkCandidates> nearest_candidates(const torch::Tensor& positions,
 /// {1.0, 0.95, 0.9, 0.85, 0.8} for the paper's values. Errors if step <= 0 or tau_min > tau_max.
 StatusOr<std::vector<double>> decaying_thresholds(double tau_max, double tau_min, double step);
 
-/// Algorithm 1 (method.md §6.2). For each threshold tau, visit the anchors i in index order; skip
-/// i if inactive, a leaf or a root; among its candidates keep j != i, j active, not a leaf, not a
-/// root, score >= tau - 1e-6; link i to the best kept (first in list order on equal scores) and
-/// make it a root. Returns the link vector [N] int64 (passes check_links). An empty threshold
+/// Algorithm 1 (docs/method.md §6.2). For each threshold tau, visit the anchors i in index order;
+/// skip i if inactive, a leaf or a root; among its candidates keep j != i, j active, not a leaf,
+/// not a root, score >= tau - 1e-6; link i to the best kept (first in list order on equal scores)
+/// and make it a root. Returns the link vector [N] int64 (passes check_links). An empty threshold
 /// list gives no links; use -infinity for "no threshold".
 StatusOr<torch::Tensor> greedy_links(const LinkCandidates& candidates,
                                      const std::vector<double>& thresholds,

@@ -1,7 +1,7 @@
 /// @file metrics.h
-/// @brief Image quality metrics of the evaluation protocol (method.md §1.6, §4), without libtorch.
-/// Inputs are HWC float images in [0, 1] of equal size and channel count; accumulation is in
-/// double precision.
+/// @brief Image quality metrics of the evaluation protocol (docs/method.md §1.6, §4), without
+/// libtorch. Inputs are HWC float images in [0, 1] of equal size and channel count; accumulation is
+/// in double precision.
 #pragma once
 
 #include "crpgs/image.h"

@@ -24,7 +24,7 @@ struct TrainingProgress {
   double elapsed_seconds = 0;        ///< training wall-clock, resumed runs included
   double eta_seconds = 0;
   bool has_rate = false;      ///< rate phase of the rate path: the next field is set
-  double bits_per_param = 0;  ///< rate term before lambda (bpp + hash share, method.md §2.5)
+  double bits_per_param = 0;  ///< rate term before lambda (bpp + hash share, docs/method.md §2.5)
 };
 
 class ProgressCallback {

@@ -9,7 +9,7 @@
 namespace crpgs {
 
 /// Up to and including iteration schedule.rate_start nothing reads the rate weights
-/// (rate.lambda, rate.mask_lambda: the rate and mask terms start after it, method.md §2.3), so
+/// (rate.lambda, rate.mask_lambda: the rate and mask terms start after it, docs/method.md §2.3), so
 /// runs whose resolved configs differ only there train identically until then (bit for bit on
 /// one build, thread count and BLAS kernel set) and can share that prefix: for an RD sweep a third
 /// of HAC's 30k iterations. Thread counts (train.threads, rasterizer.threads) are blanked too:

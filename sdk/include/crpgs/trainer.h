@@ -25,7 +25,7 @@
 
 namespace crpgs {
 
-/// Phase boundaries in iterations (method.md §1.4, §2.3). Densification statistics run for
+/// Phase boundaries in iterations (docs/method.md §1.4, §2.3). Densification statistics run for
 /// start_stat < it < update_until; anchors are adjusted when it > update_from and
 /// it % update_interval == 0, except for pause_from <= it < pause_until.
 struct Schedule {
@@ -35,16 +35,16 @@ struct Schedule {
   int update_interval = 100;
   int update_until = 15000;
   int pause_from = 3000, pause_until = 4000;
-  /// Rate path only (method.md §2.3): raw attributes for it <= quant_start, + U(-1/2,1/2)*Q0 up
-  /// to rate_start, bounds recomputed at rate_start (rate.recompute_bounds), adaptive-step noise
+  /// Rate path only (docs/method.md §2.3): raw attributes for it <= quant_start, + U(-1/2,1/2)*Q0
+  /// up to rate_start, bounds recomputed at rate_start (rate.recompute_bounds), adaptive-step noise
   /// plus rate and mask terms for it > rate_start.
   int quant_start = 3000;
   int rate_start = 10000;
   /// Learning-rate schedules run over lr_steps iterations and stay at their final values after
-  /// (CRP-GS trains 40k iterations on HAC's 30k schedules, method.md §7.7).
+  /// (CRP-GS trains 40k iterations on HAC's 30k schedules, docs/method.md §7.7).
   int lr_steps = 30000;
-  /// Iterations at which the anchor links are (re)built from scratch (method.md §7.6); only used
-  /// with a `links` component.
+  /// Iterations at which the anchor links are (re)built from scratch (docs/method.md §7.6); only
+  /// used with a `links` component.
   std::vector<int> link_builds{30000, 33000, 36000};
   /// HAC's 30k schedule.
   static Schedule full();
@@ -119,7 +119,7 @@ struct PsnrPoint {
 /// The rate path's terms of the last iteration (rate phase only; `on` false otherwise).
 struct RateReport {
   bool on = false;
-  double bits_per_param = 0;   ///< subset bpp x active fraction (method.md §2.5)
+  double bits_per_param = 0;   ///< subset bpp x active fraction (docs/method.md §2.5)
   double hash_bits = 0;        ///< B_h of the context
   double rate = 0;             ///< bits_per_param + hash_bits / (N_all (Dc + 6 + 3K)); x lambda
   double mask_loss = 0;        ///< mean(sigmoid(mask logits)); x mask_lambda
@@ -214,7 +214,7 @@ class Trainer {
   std::string checkpoint_path() const;
   /// Settings that work but are likely not what was meant for the training still to come, one
   /// line each (e.g. a shared feature whose grid lookup moves when rate_start recomputes the
-  /// bounds, method.md §7.4).
+  /// bounds, docs/method.md §7.4).
   std::vector<std::string> setting_warnings() const;
   /// The first parameter group holding a NaN/Inf, or "" when every parameter is finite.
   std::string nonfinite_parameter_group() const;
@@ -282,7 +282,7 @@ class Trainer {
 };
 
 /// Renders `views` with the model and measures PSNR and SSIM (and LPIPS with `lpips`) on the
-/// 8-bit round trip (method.md §4); with png_dir, writes the renders and the ground truth as
+/// 8-bit round trip (docs/method.md §4); with png_dir, writes the renders and the ground truth as
 /// `<png_dir>/renders/00000.png` and `<png_dir>/gt/00000.png` (3DGS's layout), numbered in view
 /// order. A model with the rate path that is not already quantised is evaluated quantised
 /// (model.quantize(), HAC's test-time attributes) and left as it was.

@@ -359,7 +359,7 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
   if (m.links.defined()) {
     if (m.links.dim() != 1 || m.links.size(0) != N) return bad("links must be [N]");
     const auto l = m.links.to(torch::kLong).contiguous();
-    // In range, one hop, one leaf per root (method.md §6.2): what the decoder accepts.
+    // In range, one hop, one leaf per root (docs/method.md §6.2): what the decoder accepts.
     if (Status st = check_links(l, {}); !st.ok()) return bad(st.message());
     const int64_t* lp = l.data_ptr<int64_t>();
     for (int64_t i = 0; i < N; ++i) links.push_back(int32_t(lp[i]));
@@ -393,7 +393,7 @@ StatusOr<EncodeResult> encode_model(const CodedModel& model, const Config& confi
     CRPGS_ASSIGN_OR_RETURN(Bytes link_bytes, coding::encode_links_compact(links));
     CRPGS_RETURN_IF_ERROR(w.add_section("LINK", kCompactLinks, 1, 0, std::move(link_bytes)));
   } else if (m.links.defined()) {
-    // The active-anchor mask is redundant for decoding (method.md §7.11); written so the size
+    // The active-anchor mask is redundant for decoding (docs/method.md §7.11); written so the size
     // accounting matches the paper's side information.
     if (!m.anchor_mask.defined() || m.anchor_mask.sum().item<int64_t>() != N)
       return bad("the anchor mask must mark exactly the N coded anchors");
@@ -765,7 +765,7 @@ StatusOr<CodedModel> coded_model_from(const AnchorModel& model, QuantizedAttribu
   const int64_t n = canon.size(0);
   CodedModel m;
   if (model.has_links()) {
-    // Sanitise (method.md §7.10): a link whose leaf or root is not coded is dropped; the rest
+    // Sanitise (docs/method.md §7.10): a link whose leaf or root is not coded is dropped; the rest
     // are remapped to canonical indices. Links never built: every anchor is free.
     m.links = torch::full({n}, -1, torch::kLong);
     if (model.links().defined()) {

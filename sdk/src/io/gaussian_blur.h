@@ -1,5 +1,5 @@
 /// @file gaussian_blur.h
-/// @brief The SSIM window (method.md §1.6, §4): 11 Gaussian taps, sigma 1.5, zero padding,
+/// @brief The SSIM window (docs/method.md §1.6, §4): 11 Gaussian taps, sigma 1.5, zero padding,
 /// applied separably, along rows and then along columns. One definition for the evaluation
 /// metric (double, one plane at a time) and the training loss (float, interleaved channels).
 #pragma once

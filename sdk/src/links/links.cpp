@@ -1,5 +1,5 @@
 /// @file links.cpp
-/// @brief Anchor-link algorithms (method.md §6.2, §7 items 5, 10): cosine / nearest candidate
+/// @brief Anchor-link algorithms (docs/method.md §6.2, §7 items 5, 10): cosine / nearest candidate
 /// retrieval, the greedy one-to-one matching of Algorithm 1, random pairing and the validity check.
 ///
 /// Determinism of the cosine lists: the features are normalised and rounded to integers of

@@ -122,7 +122,7 @@ float serial_mean(const torch::Tensor& t) {
   return n ? float(s / double(n)) : 0.f;
 }
 
-// x clamped to mean +- 15000 q (q broadcasts; method.md §2.2).
+// x clamped to mean +- 15000 q (q broadcasts; docs/method.md §2.2).
 torch::Tensor clamp_about(const torch::Tensor& x, float mean, const torch::Tensor& q) {
   auto r = q * 15000.0;
   return torch::min(torch::max(x, mean - r), mean + r);
@@ -164,7 +164,7 @@ struct RenderValues {
   torch::Tensor offsets;      // [A, K, 3]
   torch::Tensor mask;         // [A, K] float 0/1
   // [A, F] the feature model's output, computed once: SFA's shared feature is per anchor, not
-  // per rendered view (method.md §7.15).
+  // per rendered view (docs/method.md §7.15).
   torch::Tensor mlp_features;
 };
 
@@ -180,20 +180,20 @@ struct AnchorModel::Impl {
   int i_feat = -1, i_offset = -1, i_scaling = -1, i_mask = -1, i_app = -1;
   Mlp mlp_opacity, mlp_color, mlp_cov;
   int mlp_first = -1;  // index of the first MLP group (12 tensors follow)
-  // Rate path (method.md §2).
+  // Rate path (docs/method.md §2).
   std::shared_ptr<ContextModel> context;
   std::shared_ptr<EntropyModel> entropy;
   RateOptions rate;
   QuantPhase phase = QuantPhase::kRaw;
   torch::Generator gen;
-  // Anchor links (CRP-GS, method.md §6.2-§6.3).
+  // Anchor links (CRP-GS, docs/method.md §6.2-§6.3).
   std::shared_ptr<ContextModel> link_strategy;
   LinkOptions link_opt;
   torch::Tensor links;                  // [N] int64 root model index or -1; undefined until built
   int i_leaf = -1;                      // first of the 4 leaf-MLP groups
   std::optional<RenderValues> over;     // set_quantized
   std::optional<RenderValues> decoded;  // from_decoded: always rendered
-  // Statistics (method.md §1.4).
+  // Statistics (docs/method.md §1.4).
   torch::Tensor opacity_accum, anchor_demon;      // [N]
   torch::Tensor offset_grad_accum, offset_denom;  // [N*K]
 
@@ -262,7 +262,7 @@ struct AnchorModel::Impl {
 };
 
 // μ_f of the anchors `rows` [S] with the leaf model where the anchor is a leaf of an active root
-// (method.md §7.9-§7.10): f̂_root = the codec's value of f (code_symbols·Q) through a
+// (docs/method.md §7.9-§7.10): f̂_root = the codec's value of f (code_symbols·Q) through a
 // straight-through estimator with Q detached; the root's Q and position are computed on demand
 // (it need not be visible). feature_mean: serial_mean of every anchor's features, the centre of
 // the codec's clamp.
@@ -336,7 +336,7 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
     g.lr = log_lerp(rate.lr_context_init, rate.lr_context_final, it, T);
   else if (g.schedule == "context_mlp")
     g.lr = log_lerp(rate.lr_context_mlp_init, rate.lr_context_mlp_final, it, T);
-  else if (g.schedule == "leaf_mlp")  // its own window (method.md §7.7)
+  else if (g.schedule == "leaf_mlp")  // its own window (docs/method.md §7.7)
     g.lr = log_lerp(link_opt.lr_leaf_init, link_opt.lr_leaf_final, it - link_opt.lr_start,
                     link_opt.lr_end - link_opt.lr_start);
   else  // the feature model (e.g. SFA's shared grid)
@@ -637,7 +637,7 @@ StatusOr<int64_t> AnchorModel::rebuild_links(uint64_t seed) {
   // The link strategies' searches run on the CPU (crpgs/links.h); the result follows the model.
   const auto cpu = [](const torch::Tensor& t) { return t.detach().to(torch::kCPU); };
   LinkInputs in;
-  in.features = cpu(m.p(m.i_feat));  // raw f_i (method.md §7.5)
+  in.features = cpu(m.p(m.i_feat));  // raw f_i (docs/method.md §7.5)
   in.positions = cpu(m.anchor);
   in.active = cpu(active_anchors());
   in.seed = seed;
@@ -880,7 +880,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
     mask_v = rv->mask.index_select(0, idx);
   else if (m.opt.use_offset_mask)
     mask_v = ste_mask(gather_sorted_rows(m.p(m.i_mask), idx), m.opt.mask_threshold);
-  // Training-time quantisation (method.md §2.3): uniform noise of one step.
+  // Training-time quantisation (docs/method.md §2.3): uniform noise of one step.
   if (for_training && !rv && m.context && m.phase != QuantPhase::kRaw) {
     const EntropyParamLayout layout{m.features_model->coded_dim(), K};
     ContextModel::PartialOutput ctx;
@@ -901,7 +901,7 @@ NeuralGaussians AnchorModel::generate(const Camera& camera, int camera_index,
     scal_v = scal_v + noise(scal_v) * out.q_s;
     offs_v = offs_v + noise(offs_v) * out.q_o.unsqueeze(2);
     if (m.phase == QuantPhase::kAdaptiveNoise) {
-      // Rate on a random subset of the visible active anchors (method.md §2.5).
+      // Rate on a random subset of the visible active anchors (docs/method.md §2.5).
       auto mask_r = mask_v.defined() ? mask_v : torch::ones({M, K}, anchor_v.options());
       auto active_v = (mask_r.detach() > 0.5).any(1);  // [M]
       auto chosen =

@@ -202,7 +202,7 @@ const std::vector<CoreSection>& core_sections() {
            choice(P("link_coding", T::kChoice, YAML::Node("compact"),
                     "COHS links in the bitstream: compact (leaf flags + each root's rank among "
                     "the free roots) or paper (active-anchor mask + ceil(log2(N+1)) bits per "
-                    "anchor, method.md §7.11)"),
+                    "anchor, docs/method.md §7.11)"),
                   {"compact", "paper"}),
            P("prune_links", T::kBool, YAML::Node(true),
              "with compact link coding, the encoder drops every link whose leaf saves fewer "

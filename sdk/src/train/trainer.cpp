@@ -150,7 +150,7 @@ StatusOr<double> Trainer::step() {
                            : it <= sc.rate_start ? QuantPhase::kFixedNoise
                                                  : QuantPhase::kAdaptiveNoise;
   const bool rate_path = model_->has_rate();
-  if (rate_path) {  // method.md §2.3
+  if (rate_path) {  // docs/method.md §2.3
     if (it == sc.rate_start && model_->rate_options().recompute_bounds) model_->recompute_bounds();
     const bool build =
         model_->has_links() &&
@@ -174,7 +174,7 @@ StatusOr<double> Trainer::step() {
   // What this iteration reports, read back in one copy: on a GPU each .item() waits for the
   // device, and the rate phase had seven of them per iteration.
   std::vector<torch::Tensor> reported;
-  if (ng.bits_per_param.defined()) {  // rate phase (method.md §2.5, §2.6)
+  if (ng.bits_per_param.defined()) {  // rate phase (docs/method.md §2.5, §2.6)
     const RateOptions& ro = model_->rate_options();
     const double denom = double(model_->num_anchors()) *
                          double(model_->features().size(1) + 6 + 3 * model_->n_offsets());
@@ -538,7 +538,7 @@ std::vector<std::string> Trainer::setting_warnings() const {
     out.push_back("rate.recompute_bounds is true with a shared feature (features: " +
                   f->type_name() + "): every anchor's shared-feature lookup moves at rate_start (" +
                   std::to_string(options_.schedule.rate_start) +
-                  "); method.md §7.4 keeps the bounds, as configs/crpgs.yaml does "
+                  "); docs/method.md §7.4 keeps the bounds, as configs/crpgs.yaml does "
                   "(rate: {recompute_bounds: false})");
   return out;
 }

@@ -1,6 +1,6 @@
 /// @file bit_packing.h
 /// @brief Fixed-width bit packing, and the COHS link vector in its two codings:
-/// - paper (method.md §7.11): one entry per active anchor, the active index of its root or
+/// - paper (docs/method.md §7.11): one entry per active anchor, the active index of its root or
 ///   "no root", stored with w = ceil(log2(N_a + 1)) bits per entry and the sentinel 2^w - 1;
 /// - compact: leaf flags plus each leaf's root as a rank among the roots still free (one-to-one
 ///   links only), 2.2-2.5x smaller on fern (bench/results/rd_fern.md).

@@ -52,7 +52,7 @@ StatusOr<Bytes> encode_voxels_raw(const std::vector<Voxel>& points);
 /// strictly increasing in Morton order.
 StatusOr<std::vector<Voxel>> decode_voxels_raw(ByteSpan bytes);
 
-/// HAC's fallback (method.md §7.1): each coordinate quantised uniformly to 16 bits inside the
+/// HAC's fallback (docs/method.md §7.1): each coordinate quantised uniformly to 16 bits inside the
 /// bounds [lo, hi] and stored raw (N * 3 * 16 bits). Lossy: the error is up to half a step,
 /// (hi - lo) / 65535 / 2 per axis; positions outside the bounds are clamped. The input order is
 /// kept (no reordering, duplicates allowed). Layout: varint n | f32 lo[3] | f32 hi[3] |
