@@ -4,6 +4,7 @@
 
 #include <ATen/CPUGeneratorImpl.h>
 
+#include <array>
 #include <functional>
 
 #include "crpgs/anchor_model.h"
@@ -133,6 +134,24 @@ TEST(ChunkedMlp, SameValuesAndGradientsAsLibtorch) {
   EXPECT_FALSE(y.requires_grad());
   EXPECT_TRUE(torch::allclose(
       y, torch::linear(torch::relu(torch::linear(in[0], in[1], in[2])), in[3], in[4]), 1e-5, 1e-5));
+}
+
+// Degenerate matrices for the direct BLAS calls: one output (dy^T is [1, n]), one hidden unit,
+// chunks of one row; values and all five gradients as libtorch's.
+TEST(ChunkedMlp, OneOutputOneHiddenUnitAndOneRowChunks) {
+  torch::manual_seed(11);
+  for (auto [rows, hidden, outputs] : {std::array<int64_t, 3>{1025, 6, 1}, {3, 1, 4}, {1, 1, 1}}) {
+    const auto d = torch::kDouble;
+    std::vector<torch::Tensor> in = {torch::randn({rows, 9}, d), torch::randn({hidden, 9}, d),
+                                     torch::randn({hidden}, d), torch::randn({outputs, hidden}, d),
+                                     torch::randn({outputs}, d)};
+    auto upstream = torch::randn({rows, outputs}, d);
+    auto ref = mlp_and_grads(in, upstream, false);
+    auto got = mlp_and_grads(in, upstream, true);
+    for (size_t i = 0; i < ref.size(); ++i)
+      EXPECT_TRUE(torch::allclose(got[i], ref[i], 1e-12, 1e-12))
+          << rows << " rows, " << hidden << " hidden, " << outputs << " outputs: tensor " << i;
+  }
 }
 
 // The chunks call BLAS directly with the bias written first, as at::addmm does: the forward is

@@ -47,11 +47,21 @@ FortranGemm<T> fortran_gemm() {
 // is the one at::mm makes for the same operands (row-major c as column-major c^T = b^T a^T).
 void gemm(const at::Tensor& a, const at::Tensor& b, at::Tensor& c, bool accumulate) {
   const int64_t M = c.size(0), N = c.size(1), K = a.size(1);
+  // A row-major matrix, or the transpose of one ('t'); a dimension of size 1 has any stride,
+  // and BLAS wants a leading dimension of at least the stored row length.
   auto layout = [](const at::Tensor& t, char* trans, int* ld) {
-    const bool row_major = t.stride(1) == 1 && (t.size(0) == 1 || t.stride(0) >= t.size(1));
-    *trans = row_major ? 'n' : 't';
-    *ld = int(std::max<int64_t>(1, row_major ? t.stride(0) : t.stride(1)));
-    return row_major || (t.stride(0) == 1 && t.stride(1) >= t.size(0));
+    const int64_t r = t.size(0), c = t.size(1);
+    if (t.stride(1) == 1 && (r == 1 || t.stride(0) >= c)) {
+      *trans = 'n';
+      *ld = int(std::max<int64_t>(1, r == 1 ? c : t.stride(0)));
+      return true;
+    }
+    if (t.stride(0) == 1 && (c == 1 || t.stride(1) >= r)) {
+      *trans = 't';
+      *ld = int(std::max<int64_t>(1, c == 1 ? r : t.stride(1)));
+      return true;
+    }
+    return false;
   };
   char ta = 0, tb = 0;
   int lda = 0, ldb = 0;
