@@ -3,6 +3,8 @@
 /// and plain-text tables.
 #pragma once
 
+#include <array>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -72,6 +74,16 @@ int eval_bitstream_file(const GlobalOptions& g, const std::string& path, const s
 /// export_gaussians with a progress bar over the refinement, its notes on stderr and a line on
 /// the fit (cmd_export.cpp; `crpgs export` and `crpgs view`).
 StatusOr<ExportResult> export_with_progress(ModelSource& source, const ExportOptions& options);
+
+/// What a .ply is read against (`crpgs import`, `crpgs view -c`): the config's dataset and
+/// rasterizer as it sets them up (its model is not used; the dataset's warnings on stderr) and
+/// the scene's background (cmd_export.cpp).
+struct PlyReadingSetup {
+  std::unique_ptr<Trainer> setup;
+  std::array<float, 3> background{};
+};
+StatusOr<PlyReadingSetup> ply_reading_setup(const GlobalOptions& g, const ComponentRegistry& r,
+                                            const std::string& config);
 
 /// Subcommand registration (each in its own .cpp).
 void add_plugin_commands(CLI::App& app, GlobalOptions& g);

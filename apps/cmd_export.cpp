@@ -58,6 +58,16 @@ StatusOr<ExportResult> export_with_progress(ModelSource& source, const ExportOpt
   return exported;
 }
 
+StatusOr<PlyReadingSetup> ply_reading_setup(const GlobalOptions& g, const ComponentRegistry& r,
+                                            const std::string& config) {
+  CRPGS_ASSIGN_OR_RETURN(Config cfg, load_config(config, g.sets, r));
+  CRPGS_ASSIGN_OR_RETURN(AnchorModelOptions options, model_options_from_config(cfg));
+  PlyReadingSetup out;
+  CRPGS_ASSIGN_OR_RETURN(out.setup, setup_training_and_warn(cfg, r, reading_setup("")));
+  out.background = options.effects.background;
+  return out;
+}
+
 namespace {
 
 int export_command(const GlobalOptions& g, const std::string& source, const std::string& out,
@@ -140,15 +150,11 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
   if (ply->dropped_non_finite > 0)
     std::fprintf(stderr, "warning: %s: %zu Gaussians with a NaN or infinite value left out\n",
                  path.c_str(), ply->dropped_non_finite);
-  auto cfg = load_config(config, g.sets, r);
-  if (!cfg.ok()) return report_error(cfg.status());
-  auto options = model_options_from_config(cfg.value());
-  if (!options.ok()) return report_error(options.status());
-  // The dataset and rasterizer exactly as the config sets them up (its model is not used).
-  auto setup = setup_training_and_warn(cfg.value(), r, reading_setup(""));
-  if (!setup.ok()) return report_error(setup.status());
-  auto ev = evaluate_ply(ply.value(), setup.value()->rasterizer(), setup.value()->dataset().test,
-                         options->effects.background, png_dir);
+  auto reading = ply_reading_setup(g, r, config);
+  if (!reading.ok()) return report_error(reading.status());
+  Trainer& setup = *reading->setup;
+  auto ev = evaluate_ply(ply.value(), setup.rasterizer(), setup.dataset().test, reading->background,
+                         png_dir);
   if (!ev.ok()) return report_error(ev.status());
   std::printf("%s: %zu Gaussians, SH degree %d; %.1f ms/view\n", path.c_str(), ply->size(),
               ply->sh_degree, ev->seconds_per_view * 1e3);

@@ -184,21 +184,16 @@ int view_command(const GlobalOptions& g, const ViewOptions& o) {
     fs::create_symlink(fs::absolute(o.source), ply_path, ec);
     if (ec)
       return report_error(Status(StatusCode::kInternal, ply_path.string() + ": " + ec.message()));
-    std::unique_ptr<Trainer> setup;
-    std::array<float, 3> background{0.f, 0.f, 0.f};
+    PlyReadingSetup reading;
     if (!o.config.empty()) {
       set_compute_threads(o.threads);
-      auto cfg = load_config(o.config, g.sets, r);
-      if (!cfg.ok()) return report_error(cfg.status());
-      auto options = model_options_from_config(cfg.value());
-      if (!options.ok()) return report_error(options.status());
-      background = options->effects.background;
-      auto s = setup_training_and_warn(cfg.value(), r, reading_setup(""));
+      auto s = ply_reading_setup(g, r, o.config);
       if (!s.ok()) return report_error(s.status());
-      setup = std::move(s.value());
+      reading = std::move(s.value());
     }
     std::printf("%s: %zu Gaussians, SH degree %d\n", o.source.c_str(), ply->size(), ply->sh_degree);
-    json = scene_json(title, background, setup ? &setup->dataset() : nullptr);
+    json =
+        scene_json(title, reading.background, reading.setup ? &reading.setup->dataset() : nullptr);
   } else {
     if (!o.config.empty())
       return report_error(
