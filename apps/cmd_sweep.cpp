@@ -116,7 +116,8 @@ void print_time_left(const std::vector<UnfinishedRun>& left,
 
 /// `crpgs sweep --status`: each run's state, its progress (from its log) or its result.
 int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun>& runs,
-                       const std::string& runs_dir, const ComponentRegistry& registry) {
+                       size_t sweep_size, const std::string& runs_dir,
+                       const ComponentRegistry& registry) {
   std::vector<std::vector<std::string>> rows{{"run", "state", "progress", "result"}};
   int done = 0, running = 0, stopped = 0, waiting = 0;
   char buf[160];
@@ -159,9 +160,7 @@ int print_sweep_status(const ex::SweepSpec& spec, const std::vector<ex::SweepRun
              : schedules[i] ? double(schedules[i]->iterations)
                             : std::nan("");
     };
-    std::vector<std::string> row{
-        "[" + std::to_string(r.index + 1) + "/" + std::to_string(runs.size()) + "] " + r.id, "", "",
-        ""};
+    std::vector<std::string> row{ex::run_tag(r, sweep_size), "", "", ""};
     const auto progress = last_progress(file_tail(r.dir + "/stderr.log"), "train");
     const std::string holder = directory_lock_holder(r.dir);
     std::error_code ec;
@@ -263,7 +262,7 @@ int run_sweep_command(const SweepArgs& a, const GlobalOptions& g) {
                                                                  all_runs.front().id + ")"));
   if (Status st = ex::add_overrides(runs, a.sets); !st.ok()) return report_error(st);
   ComponentRegistry registry = load_registry(g);
-  if (a.status) return print_sweep_status(spec.value(), runs, runs_dir, registry);
+  if (a.status) return print_sweep_status(spec.value(), runs, all_runs.size(), runs_dir, registry);
 
   ex::ExecOptions opt;
   opt.workers = a.jobs > 0 ? a.jobs : spec->workers;

@@ -79,6 +79,8 @@ TEST(Sweep, ParsesAndExpandsDeterministically) {
   EXPECT_EQ(runs[2].id, "fern/a/lambda-1.0e-3_sfa-0.5");
   EXPECT_EQ(runs[6].id, "fern/bee/lambda-1.0e-4_sfa-0.5");
   EXPECT_EQ(runs[12].dataset, "lego");
+  // A run keeps its number in the whole sweep, whatever --only selects.
+  EXPECT_EQ(run_tag(runs[12], runs.size()), "[13/24] " + runs[12].id);
   // The rate key moves along a curve; other grid keys make separate methods.
   EXPECT_EQ(runs[0].method, "a sfa=0.5");
   EXPECT_EQ(runs[1].method, "a sfa=1");

@@ -226,6 +226,10 @@ std::string rate_scale_dir(const std::string& run_dir, double scale) {
   return (fs::path(run_dir) / "rates" / ("scale-" + g_text(scale))).string();
 }
 
+std::string run_tag(const SweepRun& run, size_t sweep_size) {
+  return "[" + std::to_string(run.index + 1) + "/" + std::to_string(sweep_size) + "] " + run.id;
+}
+
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir_in) {
   const std::string runs_dir = runs_dir_in.empty() ? spec.output : runs_dir_in;
   // Short labels for grid keys: the last part, or the whole key where last parts collide.
@@ -621,11 +625,11 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
   SweepSummary sum;
   sum.total = static_cast<int>(runs.size());
   std::vector<const SweepRun*> rates_todo;  // finished runs to re-encode (one_model)
-  const std::string n = std::to_string(opt.sweep_size > 0 ? size_t(opt.sweep_size) : runs.size());
+  const size_t n = opt.sweep_size > 0 ? size_t(opt.sweep_size) : runs.size();
   std::vector<const SweepRun*> todo;
   for (const auto& r : runs) {
     const RunState st = run_state(r.dir);
-    const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+    const std::string tag = run_tag(r, n);
     if (st == RunState::kComplete) {
       ++sum.skipped;
       const std::string change = config_change(r, opt.registry, true);
@@ -685,7 +689,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     while (!stopping && !rates_todo.empty() && active.size() < workers) {
       const SweepRun& r = *rates_todo.front();
       rates_todo.erase(rates_todo.begin());
-      const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+      const std::string tag = run_tag(r, n);
       auto pid = launch_rates(r, opt);
       if (!pid.ok()) {
         ++sum.failed;
@@ -704,18 +708,16 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
       auto pid = launch(r, opt, &skipped, &note);
       if (pid.ok() && pid.value() == 0) {
         ++sum.skipped;
-        log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": " + skipped);
+        log(run_tag(r, n) + ": " + skipped);
         continue;
       }
       if (!pid.ok()) {
         ++sum.failed;
         sum.failed_ids.push_back(r.id);
-        log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id +
-            ": cannot start: " + pid.status().message());
+        log(run_tag(r, n) + ": cannot start: " + pid.status().message());
         continue;
       }
-      log("[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id + ": started (logs in " +
-          r.dir + ")" + note);
+      log(run_tag(r, n) + ": started (logs in " + r.dir + ")" + note);
       active.push_back({pid.value(), &r});
     }
     if (active.empty()) continue;
@@ -736,7 +738,7 @@ StatusOr<SweepSummary> run_sweep_local(const std::vector<SweepRun>& runs, const 
     const SweepRun& r = *it->run;
     const bool rates = it->rates;
     active.erase(it);
-    const std::string tag = "[" + std::to_string(r.index + 1) + "/" + n + "] " + r.id;
+    const std::string tag = run_tag(r, n);
     const bool exited_ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
     if (rates) {
       if (exited_ok && !wants_rates(r, opt)) {

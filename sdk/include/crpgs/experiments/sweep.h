@@ -96,6 +96,10 @@ struct SweepRun {
   double rate = NAN;    ///< the rate_key value, when numeric
 };
 
+/// "[i/n] <id>": how the sweep's log and its --status name a run; n is the whole sweep's size,
+/// so a run keeps its number whatever --only selects.
+std::string run_tag(const SweepRun& run, size_t sweep_size);
+
 /// Datasets x configs x grid, in that nesting order. `runs_dir` empty = spec.output.
 std::vector<SweepRun> expand_sweep(const SweepSpec& spec, const std::string& runs_dir = "");
 
