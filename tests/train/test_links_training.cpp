@@ -574,5 +574,25 @@ train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, checkpoint_interva
   EXPECT_EQ(hac_mo->lr.feature_model_start, 0);
 }
 
+// A softer, shorter hold: before the rate phase begins SFA learns at a fraction of its lr.
+TEST(SharedFeatures, HoldLrScaleAppliesUntilFeatureModelStart) {
+  SKIP_WITHOUT_PLUGINS();
+  auto raw = Config::from_string(
+      "train: {schedule: fast, feature_model_start: rate_start, feature_model_hold_lr_scale: "
+      "0.1}\n",
+      "soft_hold.yaml");
+  ASSERT_TRUE(raw.ok()) << raw.status().to_string();
+  auto mo = model_options_from_config(raw->resolve(test::rate_registry()).value());
+  ASSERT_TRUE(mo.ok()) << mo.status().to_string();
+  EXPECT_EQ(mo->lr.feature_model_start, 1000);  // the fast schedule's rate_start
+  EXPECT_DOUBLE_EQ(mo->lr.feature_model_hold_scale, 0.1);
+  auto bad = Config::from_string("train: {feature_model_hold_lr_scale: 2}\n", "bad_hold.yaml");
+  ASSERT_TRUE(bad.ok());
+  auto rejected = bad->resolve(test::rate_registry());
+  ASSERT_FALSE(rejected.ok());
+  EXPECT_NE(rejected.status().message().find("feature_model_hold_lr_scale"), std::string::npos)
+      << rejected.status().message();
+}
+
 }  // namespace
 }  // namespace crpgs

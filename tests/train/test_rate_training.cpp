@@ -337,6 +337,9 @@ TEST(RateTraining, PrefixKeyLeavesTheDefaultDeviceOut) {
   YAML::Node tree = YAML::Load(cpu.dump());
   ASSERT_EQ(tree["train"]["device"].as<std::string>(), "cpu");
   tree["train"].remove("device");
+  // feature_model_hold_lr_scale came later still; at its default it is left out too.
+  ASSERT_EQ(tree["train"]["feature_model_hold_lr_scale"].as<double>(), 0.0);
+  tree["train"].remove("feature_model_hold_lr_scale");
   YAML::Emitter older_text;
   older_text << tree;
   const auto older = Config::from_string(older_text.c_str(), "older.yaml");
@@ -346,6 +349,9 @@ TEST(RateTraining, PrefixKeyLeavesTheDefaultDeviceOut) {
   auto gpu = Config::from_string(cpu.dump(), "gpu.yaml");  // a copy: Config shares its nodes
   ASSERT_TRUE(gpu.ok() && gpu->apply_override("train.device=cuda").ok());
   EXPECT_NE(shared_prefix_key(gpu.value()), shared_prefix_key(cpu));
+  auto soft = Config::from_string(cpu.dump(), "soft.yaml");
+  ASSERT_TRUE(soft.ok() && soft->apply_override("train.feature_model_hold_lr_scale=0.1").ok());
+  EXPECT_NE(shared_prefix_key(soft.value()), shared_prefix_key(cpu));
 }
 
 // Nothing reads the rate weights up to rate_start, so a run that starts from another run's

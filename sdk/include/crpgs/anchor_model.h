@@ -44,8 +44,10 @@ struct LearningRates {
   double mlp_color_init = 8e-3, mlp_color_final = 5e-5;
   double appearance_init = 0.05, appearance_final = 5e-4;        ///< Scaffold-GS values
   double feature_model_init = 5e-3, feature_model_final = 1e-5;  ///< as HAC's encoding_xyz
-  /// The feature model's parameters stay as initialised before this iteration (lr 0).
+  /// Before this iteration the feature model learns at feature_model_hold_scale times its lr
+  /// (0: its parameters stay as initialised).
   int feature_model_start = 0;
+  double feature_model_hold_scale = 0.0;
   int max_steps = 30000;
 };
 

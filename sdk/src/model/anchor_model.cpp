@@ -340,9 +340,8 @@ void AnchorModel::Impl::lr_for(ParamGroup& g, int it) const {
     g.lr = log_lerp(link_opt.lr_leaf_init, link_opt.lr_leaf_final, it - link_opt.lr_start,
                     link_opt.lr_end - link_opt.lr_start);
   else  // the feature model (e.g. SFA's shared grid)
-    g.lr = it < lr.feature_model_start
-               ? 0.0
-               : log_lerp(lr.feature_model_init, lr.feature_model_final, it, T);
+    g.lr = log_lerp(lr.feature_model_init, lr.feature_model_final, it, T) *
+           (it < lr.feature_model_start ? lr.feature_model_hold_scale : 1.0);
 }
 
 torch::Tensor mean_sq_dist_3nn(const torch::Tensor& points) {

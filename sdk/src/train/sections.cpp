@@ -155,10 +155,15 @@ const std::vector<CoreSection>& core_sections() {
            range(P("lr_appearance_final", T::kFloat, YAML::Node(0.0005), "final appearance lr"), 0,
                  10),
            choice(P("feature_model_start", T::kChoice, YAML::Node("start"),
-                    "when the feature model (SFA's shared grid) starts to learn: start, or "
-                    "growing_end (after anchor growing and pruning; it keeps its initial state "
-                    "until then)"),
-                  {"start", "growing_end"}),
+                    "when the feature model (SFA's shared grid) starts to learn at its full lr: "
+                    "start, rate_start (when the rate phase begins) or growing_end (after anchor "
+                    "growing and pruning); before then it learns at "
+                    "feature_model_hold_lr_scale times its lr"),
+                  {"start", "rate_start", "growing_end"}),
+           range(P("feature_model_hold_lr_scale", T::kFloat, YAML::Node(0.0),
+                   "the feature model's lr factor before feature_model_start (0: it keeps its "
+                   "initial state until then)"),
+                 0, 1),
            range(P("lr_feature_model", T::kFloat, YAML::Node(0.005),
                    "feature-model parameters lr (e.g. SFA's grid)"),
                  0, 10),

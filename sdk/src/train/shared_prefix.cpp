@@ -16,8 +16,9 @@ std::string shared_prefix_key(const Config& resolved) {
   // runs stay those of the builds before the keys existed, whose published prefixes and running
   // sweeps they continue.
   YAML::Node tree = YAML::Load(resolved.dump());
-  for (const auto& [key, default_value] :
-       {std::pair<const char*, const char*>{"device", "cpu"}, {"feature_model_start", "start"}})
+  for (const auto& [key, default_value] : {std::pair<const char*, const char*>{"device", "cpu"},
+                                           {"feature_model_start", "start"},
+                                           {"feature_model_hold_lr_scale", "0"}})
     if (tree["train"] && tree["train"][key] &&
         tree["train"][key].as<std::string>() == default_value)
       tree["train"].remove(key);

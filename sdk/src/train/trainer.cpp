@@ -864,8 +864,10 @@ StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved) {
     auto to = train_options_from_config(resolved);
     if (!to.ok()) return to.status();
     lr.max_steps = to->schedule.lr_steps;
-    if (get<std::string>(t, "feature_model_start", "start") == "growing_end")
-      lr.feature_model_start = to->schedule.update_until;
+    const std::string start = get<std::string>(t, "feature_model_start", "start");
+    if (start == "growing_end") lr.feature_model_start = to->schedule.update_until;
+    if (start == "rate_start") lr.feature_model_start = to->schedule.rate_start;
+    lr.feature_model_hold_scale = get(t, "feature_model_hold_lr_scale", 0.0);
   } catch (const YAML::Exception& e) {
     return Status(StatusCode::kInvalidConfig, std::string("model/scene config: ") + e.what());
   }
