@@ -229,6 +229,17 @@ TEST(Ply, WritesOpacitiesEightBitAlphaHoldsAndUnitRotations) {
   EXPECT_EQ(back->opacity[2], -kPlyReadSaturatedLogit);
 }
 
+// A flat Gaussian's thin axis is written at most e^10 below the median size, so that formats
+// with a 256-entry scale codebook keep their bins for the scales that show.
+TEST(Ply, WritesLogScalesAboveAFloorBelowTheMedian) {
+  PlyGaussians g = random_gaussians(0, 3, 2);
+  g.log_scales = {-69.f, -5.f, -4.f, -6.f, -5.5f, -4.5f, -3.f, 2.f, -5.2f};  // median -5
+  auto r = decode(*encode_ply(g));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->log_scales[0], -5.f - kPlyLogScaleFloorBelowMedian);
+  for (size_t k = 1; k < g.log_scales.size(); ++k) EXPECT_EQ(r->log_scales[k], g.log_scales[k]);
+}
+
 TEST(Ply, ShBasisMatchesTheReferenceFormulas) {
   float b[16];
   sh_basis(0, 0.f, 0.f, 1.f, b);

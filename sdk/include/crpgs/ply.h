@@ -55,10 +55,18 @@ struct PlyGaussians {
 /// .sog) round anything above 254.5/255 to 255, which reads back as an infinite logit.
 constexpr float kPlyMaxOpacityLogit = 5.537334f;
 
+/// The smallest log-scale written, relative to the file's median log-scale: e^-10 of a typical
+/// Gaussian's size, far below a pixel. A flat Gaussian's thin axis (the export writes ln 1e-30
+/// for a zero one) would otherwise stretch the range that formats with a 256-entry scale
+/// codebook (.sog) spread their bins over, and the largest Gaussians lose their size there
+/// (lego: 2.1 dB, bench/results/export.md).
+constexpr float kPlyLogScaleFloorBelowMedian = 10.f;
+
 /// The file's bytes (header + binary body; normals written as 0). What every consumer reads:
-/// opacity logits clamped to ±kPlyMaxOpacityLogit (alpha 1/255..254/255) and rotations as unit
-/// quaternions (a norm off 1 by more than float rounding is normalised; a zero one becomes the
-/// identity); every other value as it is.
+/// opacity logits clamped to ±kPlyMaxOpacityLogit (alpha 1/255..254/255), log-scales at least
+/// the median log-scale − kPlyLogScaleFloorBelowMedian and rotations as unit quaternions (a
+/// norm off 1 by more than float rounding is normalised; a zero one becomes the identity);
+/// every other value as it is.
 StatusOr<std::string> encode_ply(const PlyGaussians& g);
 /// Writes encode_ply(g) atomically.
 Status write_ply(const std::string& path, const PlyGaussians& g);

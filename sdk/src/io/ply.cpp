@@ -5,8 +5,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <sstream>
+#include <vector>
 
 #include "crpgs/atomic_file.h"
 
@@ -198,6 +200,13 @@ StatusOr<std::string> encode_ply(const PlyGaussians& g) {
     w += k * sizeof(float);
   };
   const float normal[3] = {0.f, 0.f, 0.f};
+  float scale_floor = -std::numeric_limits<float>::infinity();
+  if (n > 0) {
+    std::vector<float> sorted(g.log_scales);
+    auto mid = sorted.begin() + std::ptrdiff_t(sorted.size() / 2);
+    std::nth_element(sorted.begin(), mid, sorted.end());
+    scale_floor = *mid - kPlyLogScaleFloorBelowMedian;
+  }
   for (size_t i = 0; i < n; ++i) {
     put(&g.means[3 * i], 3);
     put(normal, 3);
@@ -205,7 +214,9 @@ StatusOr<std::string> encode_ply(const PlyGaussians& g) {
     if (rest) put(&g.sh_rest[rest * i], rest);
     const float opacity = std::clamp(g.opacity[i], -kPlyMaxOpacityLogit, kPlyMaxOpacityLogit);
     put(&opacity, 1);
-    put(&g.log_scales[3 * i], 3);
+    float scales[3];
+    for (int k = 0; k < 3; ++k) scales[k] = std::max(g.log_scales[3 * i + k], scale_floor);
+    put(scales, 3);
     std::array<float, 4> q;
     std::copy_n(&g.rotations[4 * i], 4, q.begin());
     const double norm = std::sqrt(double(q[0]) * q[0] + double(q[1]) * q[1] + double(q[2]) * q[2] +
