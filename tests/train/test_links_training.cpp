@@ -574,6 +574,40 @@ train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, checkpoint_interva
   EXPECT_EQ(hac_mo->lr.feature_model_start, 0);
 }
 
+// feature_model_start: auto holds SFA where anchors start from random points and not where they
+// start from SfM points.
+TEST(SharedFeatures, AutoHoldsOnlyWhereAnchorsStartFromRandomPoints) {
+  const auto& reg = test::rate_registry();
+  if (!reg.find(CRPGS_KIND_FEATURES, "sfa") || !reg.find(CRPGS_KIND_CONTEXT, "hash_grid"))
+    GTEST_SKIP() << "the sfa/hash_grid plugins are not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  SKIP_WITHOUT_PLUGINS();
+  auto feature_lr_after_two_iterations = [&](int sfm_points) {
+    auto raw = Config::from_string(
+        "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+        "synthetic_views: 8, synthetic_points: " +
+            std::to_string(sfm_points) +
+            "}\n"
+            "model: {random_init_points: 500}\n"
+            "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+            "features: {type: sfa, ratio: 0.4, n_levels: 2, resolutions: [8, 16], "
+            "log2_hashmap_size: 9, n_levels_2d: 0, resolutions_2d: [], zero_init: true}\n"
+            "entropy: {type: gaussian}\n"
+            "rasterizer: {type: cpu, threads: 1}\n"
+            "train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, "
+            "checkpoint_interval: 0, threads: 1, iterations: 2, feature_model_start: auto}\n",
+        "auto_hold.yaml");
+    EXPECT_TRUE(raw.ok()) << raw.status().to_string();
+    auto cfg = raw->resolve(reg);
+    EXPECT_TRUE(cfg.ok()) << cfg.status().to_string();
+    auto t = setup_training(cfg.value(), reg, SetupOptions{});
+    EXPECT_TRUE(t.ok()) << t.status().to_string();
+    EXPECT_TRUE(t.value()->train().ok());
+    return t.value()->model().learning_rate("feature_model");
+  };
+  EXPECT_EQ(feature_lr_after_two_iterations(0), 0.0);    // random init: held (until 15)
+  EXPECT_GT(feature_lr_after_two_iterations(300), 0.0);  // SfM points: learning
+}
+
 // A softer, shorter hold: before the rate phase begins SFA learns at a fraction of its lr.
 TEST(SharedFeatures, HoldLrScaleAppliesUntilFeatureModelStart) {
   SKIP_WITHOUT_PLUGINS();

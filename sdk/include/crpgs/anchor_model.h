@@ -48,6 +48,11 @@ struct LearningRates {
   /// (0: its parameters stay as initialised).
   int feature_model_start = 0;
   double feature_model_hold_scale = 0.0;
+  /// train.feature_model_start: auto. The hold above applies where the anchors start from random
+  /// points (no SfM points: growing and pruning must first find the surfaces, and shared features
+  /// learnt meanwhile switch whole regions off); from SfM points the feature model learns from
+  /// the start. make_trainer decides, from the dataset.
+  bool feature_model_start_auto = false;
   int max_steps = 30000;
 };
 

@@ -156,10 +156,11 @@ const std::vector<CoreSection>& core_sections() {
                  10),
            choice(P("feature_model_start", T::kChoice, YAML::Node("start"),
                     "when the feature model (SFA's shared grid) starts to learn at its full lr: "
-                    "start, rate_start (when the rate phase begins) or growing_end (after anchor "
-                    "growing and pruning); before then it learns at "
-                    "feature_model_hold_lr_scale times its lr"),
-                  {"start", "rate_start", "growing_end"}),
+                    "start, rate_start (when the rate phase begins), growing_end (after anchor "
+                    "growing and pruning) or auto (growing_end where the anchors start from "
+                    "random points, the scene having no SfM points; else start); before then it "
+                    "learns at feature_model_hold_lr_scale times its lr"),
+                  {"start", "rate_start", "growing_end", "auto"}),
            range(P("feature_model_hold_lr_scale", T::kFloat, YAML::Node(0.0),
                    "the feature model's lr factor before feature_model_start (0: it keeps its "
                    "initial state until then)"),

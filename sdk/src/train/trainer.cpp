@@ -865,7 +865,9 @@ StatusOr<AnchorModelOptions> model_options_from_config(const Config& resolved) {
     if (!to.ok()) return to.status();
     lr.max_steps = to->schedule.lr_steps;
     const std::string start = get<std::string>(t, "feature_model_start", "start");
-    if (start == "growing_end") lr.feature_model_start = to->schedule.update_until;
+    if (start == "growing_end" || start == "auto")
+      lr.feature_model_start = to->schedule.update_until;
+    lr.feature_model_start_auto = start == "auto";
     if (start == "rate_start") lr.feature_model_start = to->schedule.rate_start;
     lr.feature_model_hold_scale = get(t, "feature_model_hold_lr_scale", 0.0);
   } catch (const YAML::Exception& e) {
@@ -992,7 +994,10 @@ StatusOr<std::unique_ptr<Trainer>> make_trainer(const TrainOptions& train_option
   AnchorInit init;
   for (const auto& p : dataset.points) init.points.push_back({p.x(), p.y(), p.z()});
   for (const auto& v : dataset.train) init.train_cameras.push_back(v.camera);
-  auto model = AnchorModel::create(model_options, std::move(features), init, gen);
+  AnchorModelOptions options = model_options;
+  if (options.lr.feature_model_start_auto && !init.points.empty())
+    options.lr.feature_model_start = 0;
+  auto model = AnchorModel::create(options, std::move(features), init, gen);
   if (!model.ok()) return model.status();
   if (rate.context || rate.entropy)
     CRPGS_RETURN_IF_ERROR((*model)->attach_rate(rate.context, rate.entropy, rate.options));
