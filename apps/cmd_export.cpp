@@ -131,7 +131,7 @@ int export_command(const GlobalOptions& g, const std::string& source, const std:
                  "warning: the exported Gaussians are %.2f dB below the anchor model on the test "
                  "views; %s\n",
                  gap,
-                 refine == 0 ? "--refine 200 (the default) fits them to the training photos"
+                 refine == 0 ? "--refine (1000 by default) fits them to the training photos"
                              : "more --refine iterations, or --sh-degree 3 if lower, may close "
                                "it");
   return 0;
@@ -166,7 +166,8 @@ int import_command(const GlobalOptions& g, const std::string& path, const std::s
 
 void add_export_commands(CLI::App& app, GlobalOptions& g) {
   static std::string source, out, ply, config, png_dir;
-  static int degree = 3, directions = 96, refine = 200, threads = 0;
+  static int degree = ExportOptions{}.sh_degree, directions = ExportOptions{}.directions,
+             refine = ExportOptions{}.refine, threads = 0;
   static double view_weight = BakeOptions{}.view_weight;
   static std::string opacity_from = BakeOptions{}.opacity_over_views ? "views" : "representative";
   auto* ex = app.add_subcommand(

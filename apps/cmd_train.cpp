@@ -137,13 +137,12 @@ int run_training(const Config& cfg, const ComponentRegistry& registry, const Run
         tm.iterations, tm.generate * ms, tm.render * ms, tm.loss * ms, tm.backward * ms,
         tm.optimizer * ms);
     if (t.model().has_rate()) {  // the phases of docs/method.md §2.3
-      static const char* const kPhase[3] = {"raw attributes", "fixed noise", "rate phase"};
       std::printf("speed by phase:");
       const char* sep = " ";
       for (size_t p = 0; p < 3; ++p)
         if (tm.phase_iterations[p] > 0) {
-          std::printf("%s%s %d it at %.2f it/s", sep, kPhase[p], tm.phase_iterations[p],
-                      tm.phase_iterations[p] / tm.phase_seconds[p]);
+          std::printf("%s%s %d it at %.2f it/s", sep, StepTimes::kPhaseNames[p].words,
+                      tm.phase_iterations[p], tm.phase_iterations[p] / tm.phase_seconds[p]);
           sep = "; ";
         }
       std::printf("\n");

@@ -141,6 +141,13 @@ struct StepTimes {
   /// fields above, over the whole run: a checkpoint carries them to the resumed process.
   std::array<double, 3> phase_seconds{};
   std::array<int, 3> phase_iterations{};
+  /// Each phase's name as metrics.json records it ("phases") and as the CLI prints it.
+  struct PhaseName {
+    const char* key;
+    const char* words;
+  };
+  static constexpr PhaseName kPhaseNames[3] = {
+      {"raw", "raw attributes"}, {"fixed_noise", "fixed noise"}, {"rate", "rate phase"}};
 };
 
 class Lpips;

@@ -573,11 +573,11 @@ StatusOr<experiments::RunMetrics> finish_run(Trainer& t, const Config& cfg,
   m.config_hash = hex64(cfg.hash());
   m.train_seconds = train_s;
   if (t.model().has_rate()) {
-    static const char* const kPhase[3] = {"raw", "fixed_noise", "rate"};
     const StepTimes& tm = t.times();
     for (size_t p = 0; p < 3; ++p)
       if (tm.phase_iterations[p] > 0)
-        m.phases.push_back({kPhase[p], tm.phase_iterations[p], tm.phase_seconds[p]});
+        m.phases.push_back(
+            {StepTimes::kPhaseNames[p].key, tm.phase_iterations[p], tm.phase_seconds[p]});
   }
   for (const auto& pt : t.psnr_trace()) m.trace.push_back({pt.seconds, pt.iteration, pt.psnr});
   if (!m.trace.empty()) m.trace_views = t.trace_views();
