@@ -14,10 +14,9 @@
 #include <utility>
 #include <vector>
 
-// The kernels live in the plugin, which the bench does not link: compile them in here.
-#include "../plugins/context/hash_grid/binary_grid.cpp"
-#include "../plugins/context/hash_grid/hash_grid_kernels.cpp"
 #include "crpgs/runtime.h"
+#include "hash_grid/binary_grid.h"
+#include "hash_grid/hash_grid_kernels.h"
 
 namespace {
 

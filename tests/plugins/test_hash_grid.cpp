@@ -11,10 +11,10 @@
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
-#include "../plugins/context/hash_grid/binary_grid.h"
-#include "../plugins/context/hash_grid/hash_grid_kernels.h"
 #include "crpgs/context_model.h"
 #include "crpgs/portable_math.h"
+#include "hash_grid/binary_grid.h"
+#include "hash_grid/hash_grid_kernels.h"
 #include "plugins/plugin_test_util.h"
 
 namespace crpgs {

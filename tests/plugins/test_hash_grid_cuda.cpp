@@ -13,7 +13,7 @@
 
 #include <torch/torch.h>
 
-#include "../plugins/context/hash_grid/hash_grid_kernels.h"
+#include "hash_grid/hash_grid_kernels.h"
 
 #if CRPGS_GRID_CUDA
 #include <torch/cuda.h>

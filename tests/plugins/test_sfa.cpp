@@ -11,8 +11,8 @@
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
 
-#include "../plugins/context/hash_grid/hash_grid_kernels.h"
 #include "crpgs/feature_model.h"
+#include "hash_grid/hash_grid_kernels.h"
 #include "plugins/plugin_test_util.h"
 
 namespace crpgs {

@@ -1,11 +1,10 @@
-# Compile options of hash_grid_kernels.cpp, wherever it is compiled (both grid plugins, the tests,
-# the bench). No contraction: kernel, reference and every ISA clone round identically. No FP
+# Compile options of hash_grid_kernels.cpp (the crpgs_hash_grid library, CMakeLists.txt here). No contraction: kernel, reference and every ISA clone round identically. No FP
 # traps: the per-lane selects of the corner blocks if-convert, so they vectorise.
 set(CRPGS_HASH_GRID_KERNEL_OPTIONS "-ffp-contract=off;-fno-trapping-math")
 
 # crpgs_hash_grid_cuda(<target>): the grid's CUDA kernels (grid_cuda.cu, nvcc alone, no
-# contraction) and their glue. Linked into <target> with CRPGS_GRID_CUDA=1 where the CUDA
-# rasterizer is (cmake/CrpgsCuda.cmake: a CUDA libtorch and nvcc); where only nvcc is, compiled
+# contraction) and their glue. Linked into <target> (the crpgs_hash_grid library, which passes
+# them and CRPGS_GRID_CUDA=1 on to what links it) where the CUDA rasterizer is (cmake/CrpgsCuda.cmake: a CUDA libtorch and nvcc); where only nvcc is, compiled
 # on their own, so that a machine without a GPU still catches a broken kernel or glue.
 set(_crpgs_hash_grid_dir ${CMAKE_CURRENT_LIST_DIR})
 function(crpgs_hash_grid_cuda target)
@@ -28,7 +27,7 @@ function(crpgs_hash_grid_cuda target)
   endif()
   if(CRPGS_CUDA_ENABLED)
     target_sources(${target} PRIVATE ${_dir}/grid_cuda_glue.cpp)
-    target_link_libraries(${target} PRIVATE crpgs_hash_grid_cuda_kernels)
-    target_compile_definitions(${target} PRIVATE CRPGS_GRID_CUDA=1)
+    target_link_libraries(${target} PUBLIC crpgs_hash_grid_cuda_kernels)
+    target_compile_definitions(${target} PUBLIC CRPGS_GRID_CUDA=1)
   endif()
 endfunction()

@@ -6,13 +6,13 @@
 
 #include <torch/torch.h>
 
-#include "binary_grid.h"
 #include "crpgs/chunked_mlp.h"
 #include "crpgs/coding/bitstream.h"
 #include "crpgs/context_model.h"
 #include "crpgs/entropy_model.h"
 #include "crpgs/plugin.h"
 #include "crpgs/portable_math.h"
+#include "hash_grid/binary_grid.h"
 
 namespace crpgs {
 namespace {

@@ -7,10 +7,10 @@
 
 #include <torch/torch.h>
 
-#include "../../context/hash_grid/binary_grid.h"
 #include "crpgs/coding/bitstream.h"
 #include "crpgs/feature_model.h"
 #include "crpgs/plugin.h"
+#include "hash_grid/binary_grid.h"
 
 namespace crpgs {
 namespace {
