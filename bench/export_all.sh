@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # The export benchmark (bench/results/export.md): for each scene and method of the fast
 # benchmark's λ = 1e-3 runs, `crpgs export` of its bitstream at SH degrees DEGREES (--refine
-# REFINE, default 200), each .ply's test-view PSNR beside the anchor model's (export reads the file back);
+# REFINE), each .ply's test-view PSNR beside the anchor model's (export reads the file back);
 # then the SH-3 .ply through splat-transform to .spz and .sog (CPU) and back to .ply, each read
 # by `crpgs import` on the same test views. One thread throughout. Resumable: a step whose log
 # ends complete is not redone.
 #
 # Usage: bench/export_all.sh CRPGS RUNS_DIR OUT_DIR
 # Env:   SCENES (default "flower lego mic fern bonsai"), METHODS (default "hac crpgs"),
-#        DEGREES (default "0 1 2 3"), REFINE (export's --refine, default 200), ST (splat-transform; default
-#        build/splat_transform/node_modules/.bin/splat-transform, which the test suite installs)
+#        DEGREES (default "0 1 2 3"), REFINE (export's --refine; default 200, the sessions-35-37
+#        tables), ST (splat-transform; default build/splat_transform/node_modules/.bin/
+#        splat-transform, which the test suite installs)
 # Writes OUT_DIR/<scene>_<method>/{sh<d>.ply,sh<d>.log,scene.spz,scene.sog,back_*.ply,*.log} and
 # OUT_DIR/summary.tsv (scene, method, step, Gaussians, bytes, anchor PSNR, PSNR, seconds).
 set -uo pipefail
@@ -42,7 +43,8 @@ for scene in ${SCENES:-flower lego mic fern bonsai}; do
       log=$d/sh$deg.log
       if ! grep -q "^mean" "$log" 2> /dev/null; then
         start=$(date +%s)
-        "$crpgs" export "$run/scene.crpgs" -o "$d/sh$deg.ply" --sh-degree "$deg" --refine "${REFINE:-200}" --threads 1 \
+        "$crpgs" export "$run/scene.crpgs" -o "$d/sh$deg.ply" --sh-degree "$deg" \
+          --refine "${REFINE:-200}" --threads 1 \
           > "$log" 2>&1 || { echo "FAILED: export $scene/$method SH $deg (see $log)"; continue; }
         echo "elapsed $(($(date +%s) - start)) s" >> "$log"
       fi
