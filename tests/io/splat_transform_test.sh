@@ -55,7 +55,8 @@ rasterizer: {type: cpu, threads: 1}
 train: {iterations: 20, eval_interval: 0, checkpoint_interval: 0, threads: 1}
 YAML
 timeout 120 "$CRPGS" train -c tiny.yaml -o run > train.log 2>&1 || { cat train.log; fail "crpgs train"; }
-timeout 120 "$CRPGS" export run -o scene.ply --sh-degree 3 --refine 200 --threads 1 > export.log 2>&1 ||
+timeout 120 "$CRPGS" export run -o scene.ply --sh-degree 3 --refine 200 --threads 1 \
+  > export.log 2>&1 ||
   { cat export.log; fail "crpgs export"; }
 cat export.log
 N=$(sed -n 's/^wrote .*: \([0-9][0-9]*\) Gaussians, SH degree 3 .*/\1/p' export.log)

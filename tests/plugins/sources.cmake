@@ -8,4 +8,3 @@ list(APPEND CRPGS_TORCH_TEST_SOURCES
   ../plugins/entropy/gaussian/gaussian_coding.cpp)
 set_source_files_properties(../plugins/entropy/gaussian/gaussian_coding.cpp PROPERTIES
   COMPILE_OPTIONS "-ffp-contract=off")
-

@@ -574,41 +574,51 @@ train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, checkpoint_interva
   EXPECT_EQ(hac_mo->lr.feature_model_start, 0);
 }
 
+// The feature model's lr after two iterations of a small SFA training: from `sfm_points` SfM
+// points (0: random init) with `train_keys` added to its train section (update_until is 15).
+double feature_lr_after_two_iterations(int sfm_points, const std::string& train_keys) {
+  const auto& reg = test::rate_registry();
+  auto raw = Config::from_string(
+      "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
+      "synthetic_views: 8, synthetic_points: " +
+          std::to_string(sfm_points) +
+          "}\n"
+          "model: {random_init_points: 500}\n"
+          "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
+          "features: {type: sfa, ratio: 0.4, n_levels: 2, resolutions: [8, 16], "
+          "log2_hashmap_size: 9, n_levels_2d: 0, resolutions_2d: [], zero_init: true}\n"
+          "entropy: {type: gaussian}\n"
+          "rasterizer: {type: cpu, threads: 1}\n"
+          "train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, "
+          "checkpoint_interval: 0, threads: 1, iterations: 2, " +
+          train_keys + "}\n",
+      "sfa_hold.yaml");
+  EXPECT_TRUE(raw.ok()) << raw.status().to_string();
+  auto cfg = raw->resolve(reg);
+  EXPECT_TRUE(cfg.ok()) << cfg.status().to_string();
+  auto t = setup_training(cfg.value(), reg, SetupOptions{});
+  EXPECT_TRUE(t.ok()) << t.status().to_string();
+  EXPECT_TRUE(t.value()->train().ok());
+  return t.value()->model().learning_rate("feature_model");
+}
+
+bool sfa_plugins_built() {
+  const auto& reg = test::rate_registry();
+  return reg.find(CRPGS_KIND_FEATURES, "sfa") && reg.find(CRPGS_KIND_CONTEXT, "hash_grid");
+}
+
 // feature_model_start: auto holds SFA where anchors start from random points and not where they
 // start from SfM points.
 TEST(SharedFeatures, AutoHoldsOnlyWhereAnchorsStartFromRandomPoints) {
-  const auto& reg = test::rate_registry();
-  if (!reg.find(CRPGS_KIND_FEATURES, "sfa") || !reg.find(CRPGS_KIND_CONTEXT, "hash_grid"))
-    GTEST_SKIP() << "the sfa/hash_grid plugins are not built in " << CRPGS_PLUGIN_BUILD_DIR;
   SKIP_WITHOUT_PLUGINS();
-  auto feature_lr_after_two_iterations = [&](int sfm_points) {
-    auto raw = Config::from_string(
-        "dataset: {format: synthetic, synthetic_width: 32, synthetic_height: 24, "
-        "synthetic_views: 8, synthetic_points: " +
-            std::to_string(sfm_points) +
-            "}\n"
-            "model: {random_init_points: 500}\n"
-            "context: {type: hash_grid, log2_hashmap_size: 10, log2_hashmap_size_2d: 10}\n"
-            "features: {type: sfa, ratio: 0.4, n_levels: 2, resolutions: [8, 16], "
-            "log2_hashmap_size: 9, n_levels_2d: 0, resolutions_2d: [], zero_init: true}\n"
-            "entropy: {type: gaussian}\n"
-            "rasterizer: {type: cpu, threads: 1}\n"
-            "train: {schedule: fast, fast_factor: 0.001, eval_interval: 0, "
-            "checkpoint_interval: 0, threads: 1, iterations: 2, feature_model_start: auto}\n",
-        "auto_hold.yaml");
-    EXPECT_TRUE(raw.ok()) << raw.status().to_string();
-    auto cfg = raw->resolve(reg);
-    EXPECT_TRUE(cfg.ok()) << cfg.status().to_string();
-    auto t = setup_training(cfg.value(), reg, SetupOptions{});
-    EXPECT_TRUE(t.ok()) << t.status().to_string();
-    EXPECT_TRUE(t.value()->train().ok());
-    return t.value()->model().learning_rate("feature_model");
-  };
-  EXPECT_EQ(feature_lr_after_two_iterations(0), 0.0);    // random init: held (until 15)
-  EXPECT_GT(feature_lr_after_two_iterations(300), 0.0);  // SfM points: learning
+  if (!sfa_plugins_built())
+    GTEST_SKIP() << "the sfa/hash_grid plugins are not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const std::string keys = "feature_model_start: auto";
+  EXPECT_EQ(feature_lr_after_two_iterations(0, keys), 0.0);    // random init: held (until 15)
+  EXPECT_GT(feature_lr_after_two_iterations(300, keys), 0.0);  // SfM points: learning
 }
 
-// A softer, shorter hold: before the rate phase begins SFA learns at a fraction of its lr.
+// A softer, shorter hold: before feature_model_start SFA learns at a fraction of its lr.
 TEST(SharedFeatures, HoldLrScaleAppliesUntilFeatureModelStart) {
   SKIP_WITHOUT_PLUGINS();
   auto raw = Config::from_string(
@@ -626,6 +636,14 @@ TEST(SharedFeatures, HoldLrScaleAppliesUntilFeatureModelStart) {
   ASSERT_FALSE(rejected.ok());
   EXPECT_NE(rejected.status().message().find("feature_model_hold_lr_scale"), std::string::npos)
       << rejected.status().message();
+  // What training applies: during the hold a tenth of the lr it has learning from the start.
+  if (!sfa_plugins_built())
+    GTEST_SKIP() << "the sfa/hash_grid plugins are not built in " << CRPGS_PLUGIN_BUILD_DIR;
+  const double full = feature_lr_after_two_iterations(0, "feature_model_start: start");
+  ASSERT_GT(full, 0.0);
+  EXPECT_NEAR(feature_lr_after_two_iterations(
+                  0, "feature_model_start: growing_end, feature_model_hold_lr_scale: 0.1"),
+              0.1 * full, 1e-12 * full);
 }
 
 }  // namespace

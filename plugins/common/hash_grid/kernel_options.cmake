@@ -1,10 +1,12 @@
-# Compile options of hash_grid_kernels.cpp (the crpgs_hash_grid library, CMakeLists.txt here). No contraction: kernel, reference and every ISA clone round identically. No FP
+# Compile options of hash_grid_kernels.cpp (the crpgs_hash_grid library, CMakeLists.txt here).
+# No contraction: kernel, reference and every ISA clone round identically. No FP
 # traps: the per-lane selects of the corner blocks if-convert, so they vectorise.
 set(CRPGS_HASH_GRID_KERNEL_OPTIONS "-ffp-contract=off;-fno-trapping-math")
 
 # crpgs_hash_grid_cuda(<target>): the grid's CUDA kernels (grid_cuda.cu, nvcc alone, no
 # contraction) and their glue. Linked into <target> (the crpgs_hash_grid library, which passes
-# them and CRPGS_GRID_CUDA=1 on to what links it) where the CUDA rasterizer is (cmake/CrpgsCuda.cmake: a CUDA libtorch and nvcc); where only nvcc is, compiled
+# them and CRPGS_GRID_CUDA=1 on to what links it) where the CUDA rasterizer is
+# (cmake/CrpgsCuda.cmake: a CUDA libtorch and nvcc); where only nvcc is, compiled
 # on their own, so that a machine without a GPU still catches a broken kernel or glue.
 set(_crpgs_hash_grid_dir ${CMAKE_CURRENT_LIST_DIR})
 function(crpgs_hash_grid_cuda target)
